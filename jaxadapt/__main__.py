@@ -1,0 +1,5 @@
+import sys
+
+from jaxadapt.cli import main
+
+sys.exit(main())

@@ -1,0 +1,63 @@
+"""Colour constants, derived once at import from colour-science, and luminances.
+
+Frames are linear ITU-R BT.709 RGB in absolute units: each channel in cd/m2,
+so that the photopic luminance ``Y`` of a pixel is in cd/m2.
+"""
+
+import colour
+import jax.numpy as jnp
+import numpy as np
+
+#: Linear BT.709 RGB to CIE XYZ (D65), from colour-science.
+RGB709_TO_XYZ = np.asarray(colour.RGB_COLOURSPACES["ITU-R BT.709"].matrix_RGB_to_XYZ)
+
+#: Photopic luminance weights: the Y row of :data:`RGB709_TO_XYZ`
+#: (0.2126, 0.7152, 0.0722).
+W_PHOTOPIC = RGB709_TO_XYZ[1]
+
+#: Scotopic luminance weights for BT.709 RGB.
+#:
+#: Jacobs et al. (2015), Appendix A, give ``w_S = (0, 0.8451, 0.1459)``
+#: (adapted from Kirk and O'Brien 2011): no weight on red, most on green and
+#: blue, as the CIE 1951 scotopic curve peaking at 507 nm implies. We scale
+#: them to sum to one, so that a neutral (D65) pixel has equal scotopic and
+#: photopic values. This is the convention of Pattanaik et al. (2000), whose
+#: display observer has ``A_rod = A_cone = 25`` cd/m2 and whose Hunt-derived
+#: rod constants (Eqs 4 and 6) are stated in the same units as the cone ones.
+#: (In true scotopic cd/m2, D65 carries 2.46 times its photopic luminance by
+#: colour-science's CIE 1951 and 1931 tables: see :data:`SP_RATIO_D65`.)
+W_SCOTOPIC = np.array([0.0, 0.8451, 0.1459]) / (0.8451 + 0.1459)
+
+
+def _sp_ratio_d65():
+    """Scotopic-to-photopic luminance ratio of CIE D65 (1700 and 683 lm/W)."""
+    shape = colour.SpectralShape(380, 780, 1)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape).values
+    v_scotopic = (
+        colour.colorimetry.SDS_LEFS_SCOTOPIC["CIE 1951 Scotopic Standard Observer"]
+        .copy()
+        .align(shape)
+        .values
+    )
+    v_photopic = colour.colorimetry.SDS_LEFS_PHOTOPIC[
+        "CIE 1924 Photopic Standard Observer"
+    ].copy().align(shape).values
+    return 1700.0 * np.dot(d65, v_scotopic) / (683.0 * np.dot(d65, v_photopic))
+
+
+#: Scotopic-to-photopic luminance ratio of D65 in absolute units (about 2.46).
+SP_RATIO_D65 = float(_sp_ratio_d65())
+
+
+def photopic_luminance(rgb):
+    """Photopic luminance ``Y = w_P . rgb`` (cd/m2) of ``(..., 3)`` linear BT.709 RGB."""
+    return rgb @ jnp.asarray(W_PHOTOPIC, dtype=rgb.dtype)
+
+
+def scotopic_luminance(rgb):
+    """Scotopic luminance ``Y' = w_S . rgb`` of ``(..., 3)`` linear BT.709 RGB.
+
+    In units where a neutral pixel's scotopic value equals its photopic
+    luminance (see :data:`W_SCOTOPIC`).
+    """
+    return rgb @ jnp.asarray(W_SCOTOPIC, dtype=rgb.dtype)

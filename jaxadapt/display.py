@@ -1,0 +1,27 @@
+"""Display encodings: from display-relative linear values in [0, 1] to code values."""
+
+import jax.numpy as jnp
+import numpy as np
+
+
+def encode_srgb(v):
+    """IEC 61966-2-1 sRGB encoding of linear values in [0, 1].
+
+    ``12.92 v`` below 0.0031308, ``1.055 v^(1/2.4) - 0.055`` above.
+    """
+    v = jnp.clip(v, 0.0, 1.0)
+    high = 1.055 * jnp.maximum(v, 0.0031308) ** (1.0 / 2.4) - 0.055
+    return jnp.where(v <= 0.0031308, 12.92 * v, high)
+
+
+def encode_gamma(v, gamma=2.2):
+    """Pure power-law encoding ``v^(1/gamma)`` of linear values in [0, 1]."""
+    return jnp.clip(v, 0.0, 1.0) ** (1.0 / gamma)
+
+
+ENCODINGS = {"srgb": encode_srgb, "gamma": encode_gamma, "linear": lambda v: jnp.clip(v, 0, 1)}
+
+
+def to_uint8(v):
+    """Quantise encoded values in [0, 1] to 8-bit code values (round to nearest)."""
+    return np.asarray(jnp.round(jnp.clip(v, 0.0, 1.0) * 255.0)).astype(np.uint8)

@@ -1,0 +1,133 @@
+"""Reading HDR frames and writing display frames, with OpenImageIO.
+
+Every writer writes to a temporary file beside its target and renames it
+into place, so an interrupted or failed run never leaves a half-written
+file.
+"""
+
+import contextlib
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+#: File endings read as HDR input.
+HDR_SUFFIXES = (".exr", ".hdr", ".pic", ".pfm", ".tif", ".tiff")
+_FLOAT_FORMATS = ("float", "half", "double")
+
+
+def read_hdr(path):
+    """Read a linear HDR image as a float32 ``(H, W, 3)`` array.
+
+    Parameters
+    ----------
+    path : str or Path
+        An OpenEXR, Radiance HDR, PFM or floating-point TIFF file.
+        Single-channel images are taken as grey; channels beyond the third
+        (alpha) are dropped.
+
+    Returns
+    -------
+    numpy array, float32, (H, W, 3)
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        The file cannot be read, or does not hold floating-point data.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    image = oiio.ImageInput.open(str(path))
+    if image is None:
+        raise ValueError(f"{path}: cannot read as an image ({oiio.geterror().strip()})")
+    try:
+        spec = image.spec()
+        kind = str(spec.format)
+        is_rgbe = image.format_name() == "hdr"
+        if kind not in _FLOAT_FORMATS and not is_rgbe:
+            raise ValueError(
+                f"{path}: expected HDR data (float EXR, Radiance HDR, PFM or float TIFF), "
+                f"got {kind} {image.format_name()}"
+            )
+        pixels = image.read_image(format="float")
+        if pixels is None:
+            raise ValueError(f"{path}: cannot read pixels ({image.geterror().strip()})")
+    finally:
+        image.close()
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
+    if pixels.shape[-1] < 3:
+        pixels = np.repeat(pixels[..., :1], 3, axis=-1)
+    return pixels[..., :3]
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path beside ``path``; rename it to ``path`` on success."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def write_image(path, pixels):
+    """Write ``(H, W, C)`` pixels: uint8 (PNG) or float32 (EXR, PFM, TIFF)."""
+    pixels = np.ascontiguousarray(pixels)
+    kind = "uint8" if pixels.dtype == np.uint8 else "float"
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(path))
+        if out is None:
+            raise ValueError(f"{path}: no image writer for this format")
+        spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], kind)
+        if not (out.open(tmp, spec) and out.write_image(pixels)):
+            msg = out.geterror().strip()
+            out.close()
+            raise OSError(f"{path}: cannot write ({msg})")
+        out.close()
+
+
+@contextlib.contextmanager
+def video_writer(path, fps):
+    """Stream uint8 frames into an H.264 MP4 (the ffmpeg of imageio-ffmpeg).
+
+    Yields ``send(frames)`` taking ``(K, H, W, 3)`` uint8 chunks; frames of
+    odd size are padded by one edge pixel (4:2:0 video needs even sizes).
+    The file appears under ``path`` only when the block completes.
+    """
+    import imageio_ffmpeg
+
+    with atomic_path(path) as tmp:
+        writer = None
+
+        def send(frames):
+            nonlocal writer
+            frames = np.asarray(frames)
+            H, W = frames.shape[1:3]
+            frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
+            if writer is None:
+                writer = imageio_ffmpeg.write_frames(
+                    tmp, (W + W % 2, H + H % 2), fps=fps, macro_block_size=1,
+                    ffmpeg_log_level="error",
+                )
+                with warnings.catch_warnings():
+                    # ffmpeg is started with fork+exec, which is safe under JAX's threads
+                    warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+                    writer.send(None)
+            for frame in frames:
+                writer.send(np.ascontiguousarray(frame))
+
+        try:
+            yield send
+        finally:
+            if writer is not None:
+                writer.close()

@@ -1,0 +1,526 @@
+"""The time-dependent tone reproduction operator of Pattanaik et al. (2000).
+
+A viewer looks at a scene whose luminance changes over time; a display
+observer, adapted to an ordinary display, looks at our output. The operator
+finds display values that evoke in the display observer the appearance the
+scene evokes in the scene viewer (Fig. 1 and Fig. 4 of the paper)::
+
+    frame (cd/m2) -> goal G -> kinetics -> A, B -> sigma, references, rule
+                                                      |
+    pixels: L_rod, L_cone -> R_lum, S_color -> display response -> display RGB
+
+The adaptation state is four scalars (``A_rod``, ``A_cone``, ``B_rod``,
+``B_cone``). :func:`run` therefore finds every frame's goals (reductions),
+scans the scalar state over time, and then maps all pixels of all frames in
+one vectorised pass; :func:`step` does the same one frame at a time.
+
+Timing: frame ``k``, shown at ``t_k``, is seen with the state reached at
+``t_k``; its goal is then held for its duration ``dt_k`` to give the state
+at ``t_{k+1}``. This is the reading of §5 (title page): the frame just after
+the lights come on is seen with the adaptation of the dark frame before it
+("the lighting has changed, but the scene viewer's adaptation state has
+not"), and is almost entirely white.
+
+References
+----------
+Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation
+for Fast Realistic Image Display*, SIGGRAPH 2000, §4-§5
+(``shared/seeds/000_*.txt``).
+"""
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from jaxadapt.color import photopic_luminance, scotopic_luminance
+from jaxadapt.operators import goal as goals
+from jaxadapt.physiology import kinetics
+from jaxadapt.physiology.response import (
+    forward_difference_slope,
+    naka_rushton,
+    naka_rushton_inverse,
+    response_slope,
+    sigma_cone,
+    sigma_rod,
+)
+
+#: Scene luminances (log10 cd/m2) at which the scene-to-display curve of the
+#: diagnostics is sampled: 1e-6 to 1e8 cd/m2, ten samples a decade.
+CURVE_LOG10_LUMINANCE = jnp.linspace(-6.0, 8.0, 141)
+
+#: Fixed-point iterations of the display observer's inverse response (see
+#: :func:`display_luminance`).
+_INVERSE_ITERATIONS = 3
+
+
+def _array(x):
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+class Params(eqx.Module):
+    """Parameters of the operator; numeric fields are arrays, so a batch of
+    parameter sets can be ``vmap``-ped.
+
+    Attributes
+    ----------
+    n : float
+        Response exponent of Eq 2 (0.73, Hunt).
+    t0_rod, t0_cone : float
+        Neural adaptation time constants, s (0.150, 0.080; §4.1.2).
+    tau_rod, tau_cone : float
+        Pigment regeneration time constants, s (400, 110; Eq 7).
+    c_rod, c_cone : float
+        Bleaching constants, cd/m2 s (16, 2.2e8; Eq 7).
+    white_factor : float
+        Reference white as a multiple of adaptation (5; Eq 8).
+    black_ratio : float
+        Reference white over reference black (32; Eq 8).
+    display_adaptation : float
+        Adaptation of the display observer, cd/m2 (25; §4.3). The display's
+        white is ``white_factor`` times this (125 cd/m2) and maps to 1.0.
+    display_B_cone : float
+        Cone bleaching factor of the display observer (1; §4.3).
+    goal_fraction : float
+        Fraction of white used by the ``"white_fraction"`` goal (1/5).
+    white_percentile : float
+        Percentile of luminance taken as white by ``"white_fraction"``.
+    pixels_per_degree : float
+        Resolution at the eye, used by the ``"foveal"`` goal.
+    goal : str
+        Adaptation-goal finder: ``"log_average"``, ``"white_fraction"`` or
+        ``"foveal"`` (see :mod:`jaxadapt.operators.goal`). Static.
+    """
+
+    n: jax.Array = eqx.field(default=0.73, converter=_array)
+    t0_rod: jax.Array = eqx.field(default=0.150, converter=_array)
+    t0_cone: jax.Array = eqx.field(default=0.080, converter=_array)
+    tau_rod: jax.Array = eqx.field(default=400.0, converter=_array)
+    tau_cone: jax.Array = eqx.field(default=110.0, converter=_array)
+    c_rod: jax.Array = eqx.field(default=16.0, converter=_array)
+    c_cone: jax.Array = eqx.field(default=2.2e8, converter=_array)
+    white_factor: jax.Array = eqx.field(default=5.0, converter=_array)
+    black_ratio: jax.Array = eqx.field(default=32.0, converter=_array)
+    display_adaptation: jax.Array = eqx.field(default=25.0, converter=_array)
+    display_B_cone: jax.Array = eqx.field(default=1.0, converter=_array)
+    goal_fraction: jax.Array = eqx.field(default=0.2, converter=_array)
+    white_percentile: jax.Array = eqx.field(default=99.0, converter=_array)
+    pixels_per_degree: jax.Array = eqx.field(default=30.0, converter=_array)
+    goal: str = eqx.field(default="log_average", static=True)
+
+    def __check_init__(self):
+        if self.goal not in goals.GOALS:
+            raise ValueError(f"goal: expected one of {goals.GOALS}, got {self.goal!r}")
+
+
+class State(NamedTuple):
+    """Adaptation state of the scene viewer.
+
+    Attributes
+    ----------
+    A_rod, A_cone : array
+        Neural adaptation luminance, cd/m2.
+    B_rod, B_cone : array
+        Unbleached pigment fraction, in [0, 1].
+    """
+
+    A_rod: jax.Array
+    A_cone: jax.Array
+    B_rod: jax.Array
+    B_cone: jax.Array
+
+
+class Observer(NamedTuple):
+    """Everything the pixel map needs from one frame's adaptation: sigma and B
+    of both receptors and the affine map of the inverse appearance model
+    (display response = ``scale * R_lum + offset``)."""
+
+    sigma_rod: jax.Array
+    sigma_cone: jax.Array
+    B_rod: jax.Array
+    B_cone: jax.Array
+    scale: jax.Array
+    offset: jax.Array
+    rule: jax.Array
+
+
+class Diagnostics(NamedTuple):
+    """Per-frame record of a :func:`run` (leading axis: frames).
+
+    Attributes
+    ----------
+    t : array, (T,)
+        Time of each frame, s, from 0.
+    G_rod, G_cone : array, (T,)
+        Adaptation goals, cd/m2.
+    state : State
+        State each frame was seen with, fields of shape (T,).
+    sigma_rod, sigma_cone : array, (T,)
+        Semi-saturation luminances, cd/m2.
+    rule : array, (T,)
+        Rule of §4.3 (1-4) that mapped the frame.
+    curve : array, (T, 141)
+        Display value (linear, [0, 1]) of a neutral scene luminance
+        ``10**CURVE_LOG10_LUMINANCE`` cd/m2: the graphs under Fig. 7.
+    final_state : State
+        State after the last frame's ``dt``, to continue a sequence.
+    """
+
+    t: jax.Array
+    G_rod: jax.Array
+    G_cone: jax.Array
+    state: State
+    sigma_rod: jax.Array
+    sigma_cone: jax.Array
+    rule: jax.Array
+    curve: jax.Array
+    final_state: State
+
+
+# -- the observers ------------------------------------------------------------
+
+
+def luminance_response(params, L_rod, L_cone, sigma_r, sigma_c, B_rod, B_cone):
+    """``R_lum = R_rod + R_cone`` (Eq 2 and §4.2)."""
+    return naka_rushton(L_rod, sigma_r, B_rod, params.n) + naka_rushton(
+        L_cone, sigma_c, B_cone, params.n
+    )
+
+
+def _display_observer(params):
+    """sigma and B of the display observer, adapted to ``display_adaptation``.
+
+    sigma from Eqs 4-5 (646 and 722 cd/m2 at 25 cd/m2), ``B_rod`` the static
+    value of Eq 6 (0.0016) and ``B_cone`` the paper's 1.
+    """
+    A = params.display_adaptation
+    B_rod = kinetics.bleaching(A, params.tau_rod, params.c_rod).target
+    return sigma_rod(A, params.n), sigma_cone(A, params.n), B_rod, params.display_B_cone
+
+
+def references(params, sigma_r, sigma_c, B_rod, B_cone, A_rod, A_cone):
+    """Responses to reference white and black, ``(REF_wht, REF_blk)`` (Eq 8).
+
+    White is ``white_factor * A``, black is white over ``black_ratio``.
+    """
+    w, k = params.white_factor, params.black_ratio
+    white = luminance_response(params, w * A_rod, w * A_cone, sigma_r, sigma_c, B_rod, B_cone)
+    black = luminance_response(
+        params, w * A_rod / k, w * A_cone / k, sigma_r, sigma_c, B_rod, B_cone
+    )
+    return white, black
+
+
+def display_references(params):
+    """``(REF_wht, REF_blk)`` of the display observer (§4.3)."""
+    A = params.display_adaptation
+    return references(params, *_display_observer(params), A, A)
+
+
+def display_slope(params):
+    """The display's colour exponent ``S_d`` (§4.3).
+
+    The forward-difference slope per log10 unit of the display observer's
+    cone response between display white and black: 0.1383 with the
+    paper's constants.
+    """
+    A, w = params.display_adaptation, params.white_factor
+    _, sigma_c, _, B_cone = _display_observer(params)
+    return forward_difference_slope(w * A, w * A / params.black_ratio, sigma_c, B_cone, params.n)
+
+
+def display_luminance(params, R):
+    """Luminance (cd/m2) of a neutral display pixel that evokes response ``R``.
+
+    The inverse of the display observer's ``R_lum(L) = R_rod(L) + R_cone(L)``
+    (Eq 2 with the constants of §4.3). ``R`` is first clipped to
+    ``[0, REF_wht]``: the display cannot show more than its white. Since
+    ``B_rod = 0.0016`` the rods add little, and the fixed-point iteration
+    ``L <- R_cone^-1(R - R_rod(L))`` from ``R_cone^-1(R)`` contracts by a
+    factor below 0.01 per step; three steps reach float32 precision (a test
+    checks it against bisection in float64).
+    """
+    sigma_r, sigma_c, B_rod, B_cone = _display_observer(params)
+    white, _ = display_references(params)
+    R = jnp.clip(R, 0.0, white)
+
+    def refine(_, L):
+        return naka_rushton_inverse(R - naka_rushton(L, sigma_r, B_rod, params.n), sigma_c, B_cone, params.n)
+
+    L0 = naka_rushton_inverse(R, sigma_c, B_cone, params.n)
+    return jax.lax.fori_loop(0, _INVERSE_ITERATIONS, refine, L0)
+
+
+def inverse_appearance(params, ref_white, ref_black):
+    """The four rules of §4.3 as an affine map of the scene response.
+
+    Returns ``(scale, offset, rule)`` such that the display observer's
+    response is ``scale * R_lum + offset``:
+
+    1. the scene's reference range ``[REF_blk, REF_wht]`` lies within the
+       display's: identity (the offset of the forward appearance model is
+       cancelled exactly);
+    2. else, if the scene's ``Q_span`` exceeds the display's: compress and
+       offset so that scene white and black land on display white and black;
+    3. else, if the scene's ``Q_mid`` exceeds the display's: offset down just
+       enough that scene white lands on display white;
+    4. else: offset up just enough that scene black lands on display black.
+
+    When the span fits (rules 3-4) the range overflows on one side only, and
+    ``Q_mid`` tells which, so the four cases cover every scene.
+    """
+    white_d, black_d = display_references(params)
+    fits = (ref_white <= white_d) & (ref_black >= black_d)
+    span, span_d = ref_white - ref_black, white_d - black_d
+    mid, mid_d = 0.5 * (ref_white + ref_black), 0.5 * (white_d + black_d)
+    rule = jnp.where(fits, 1, jnp.where(span > span_d, 2, jnp.where(mid > mid_d, 3, 4)))
+    compress = span_d / span
+    scale = jnp.where(rule == 2, compress, 1.0)
+    offset = jnp.select(
+        [rule == 1, rule == 2, rule == 3],
+        [jnp.zeros_like(span), black_d - compress * ref_black, white_d - ref_white],
+        black_d - ref_black,
+    )
+    return scale, offset, rule
+
+
+def observer(params, state):
+    """The scene viewer's response constants for a state (Eqs 4-5 and 8)."""
+    sigma_r = sigma_rod(state.A_rod, params.n)
+    sigma_c = sigma_cone(state.A_cone, params.n)
+    ref_white, ref_black = references(
+        params, sigma_r, sigma_c, state.B_rod, state.B_cone, state.A_rod, state.A_cone
+    )
+    scale, offset, rule = inverse_appearance(params, ref_white, ref_black)
+    return Observer(sigma_r, sigma_c, state.B_rod, state.B_cone, scale, offset, rule)
+
+
+# -- the pixel map ------------------------------------------------------------
+
+
+def tone_map(params, obs, rgb):
+    """Map scene pixels to display-relative linear RGB in [0, 1].
+
+    Parameters
+    ----------
+    params : Params
+    obs : Observer
+        The frame's adaptation (from :func:`observer`).
+    rgb : array, shape (..., 3)
+        Linear BT.709 RGB, cd/m2.
+
+    Returns
+    -------
+    array, shape (..., 3)
+        Display values, linear, 1.0 = display white.
+
+    Notes
+    -----
+    Per pixel: ``L_rod`` (scotopic) and ``L_cone`` (photopic) luminance;
+    ``R_lum = R_rod + R_cone`` (Eq 2); the display response
+    ``scale * R_lum + offset`` (§4.3); its luminance ``L_d`` through the
+    inverse display observer; and the colour ratios ``C = rgb / L_cone``
+    raised to ``S_color / S_d`` (Eq 3 per log10 unit, over the display's
+    ``S_d``): ``out = C^(S_color/S_d) L_d / L_white``, clipped to [0, 1].
+    Black pixels (``L_cone = 0``) have neutral colour ratios.
+    """
+    L_cone = photopic_luminance(rgb)
+    L_rod = scotopic_luminance(rgb)
+    R_lum = luminance_response(
+        params, L_rod, L_cone, obs.sigma_rod, obs.sigma_cone, obs.B_rod, obs.B_cone
+    )
+    L_d = display_luminance(params, obs.scale * R_lum + obs.offset)
+    S_color = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n)
+    positive = L_cone > 0
+    ratio = jnp.where(positive[..., None], rgb / jnp.where(positive, L_cone, 1.0)[..., None], 1.0)
+    colour = ratio ** (S_color / display_slope(params))[..., None]
+    white_d = params.white_factor * params.display_adaptation
+    return jnp.clip(colour * (L_d / white_d)[..., None], 0.0, 1.0)
+
+
+def curve(params, obs):
+    """Display value of neutral scene luminances ``10**CURVE_LOG10_LUMINANCE``."""
+    L = 10.0 ** CURVE_LOG10_LUMINANCE.astype(obs.sigma_cone.dtype)
+    return tone_map(params, obs, jnp.repeat(L[:, None], 3, axis=-1))[:, 1]
+
+
+# -- goals and kinetics -------------------------------------------------------
+
+
+def frame_goals(params, frame, gaze=None):
+    """Adaptation goals ``(G_rod, G_cone)`` of a frame ``(H, W, 3)``, cd/m2."""
+    L = jnp.stack([scotopic_luminance(frame), photopic_luminance(frame)])
+    if params.goal == "log_average":
+        G = goals.log_average(L)
+    elif params.goal == "white_fraction":
+        G = goals.white_fraction(L, params.goal_fraction, params.white_percentile)
+    else:
+        if gaze is None:
+            gaze = jnp.array([frame.shape[-2] - 1, frame.shape[-3] - 1]) / 2.0
+        G = jax.vmap(goals.foveal_log_average, (0, None, None))(L, gaze, params.pixels_per_degree)
+    return G[0], G[1]
+
+
+def static_state(params, G_rod, G_cone):
+    """Fully adapted state for goals held forever: ``A = G``, ``B = B_inf(G)``."""
+    B_rod = kinetics.bleaching(G_rod, params.tau_rod, params.c_rod).target
+    B_cone = kinetics.bleaching(G_cone, params.tau_cone, params.c_cone).target
+    return State(G_rod, G_cone, B_rod, B_cone)
+
+
+def advance(params, state, G_rod, G_cone, dt):
+    """State after goals held for ``dt`` s: the exact steps of the kinetics."""
+    return State(
+        kinetics.neural_step(state.A_rod, G_rod, params.t0_rod, dt),
+        kinetics.neural_step(state.A_cone, G_cone, params.t0_cone, dt),
+        kinetics.bleaching_step(state.B_rod, G_rod, params.tau_rod, params.c_rod, dt),
+        kinetics.bleaching_step(state.B_cone, G_cone, params.tau_cone, params.c_cone, dt),
+    )
+
+
+# -- input checks -------------------------------------------------------------
+
+
+def _check_frames(frames, rank, name="frames"):
+    """Shape checks before tracing, value checks (finite, >= 0) inside jit."""
+    if frames.ndim != rank or frames.shape[-1] != 3:
+        expected = "(T, H, W, 3)" if rank == 4 else "(H, W, 3)"
+        raise ValueError(
+            f"{name}: expected linear RGB of shape {expected} in cd/m2, got shape {frames.shape}"
+        )
+    bad = ~jnp.all(jnp.isfinite(frames) & (frames >= 0))
+    return eqx.error_if(frames, bad, f"{name}: expected finite, non-negative luminance (cd/m2)")
+
+
+def _check_dt(dt, T):
+    dt = jnp.asarray(dt, dtype=jnp.result_type(float))
+    if dt.ndim > 1 or (dt.ndim == 1 and dt.shape[0] != T):
+        raise ValueError(f"dt: expected a scalar or shape ({T},) in seconds, got shape {dt.shape}")
+    dt = jnp.broadcast_to(dt, (T,))
+    return eqx.error_if(dt, ~jnp.all(dt > 0), "dt: expected positive frame durations (s)")
+
+
+# -- the contract -------------------------------------------------------------
+
+
+@eqx.filter_jit
+def init(params, first_frame, *, gaze=None, adaptation=None):
+    """State of a viewer fully adapted before the sequence starts.
+
+    Parameters
+    ----------
+    params : Params
+    first_frame : array, shape (H, W, 3)
+        Linear RGB, cd/m2; the viewer is adapted to its goals.
+    gaze : array, shape (2,), optional
+        Gaze point ``(x, y)`` in pixels, for the ``"foveal"`` goal.
+    adaptation : float, optional
+        Adapt instead to this luminance (cd/m2) for rods and cones, e.g.
+        0.01 for the moonlit start of the title-page sequence.
+
+    Returns
+    -------
+    State
+    """
+    if adaptation is not None:
+        A = jnp.asarray(adaptation, dtype=jnp.result_type(float))
+        return static_state(params, A, A)
+    first_frame = _check_frames(first_frame, 3, "first_frame")
+    return static_state(params, *frame_goals(params, first_frame, gaze))
+
+
+@eqx.filter_jit
+def step(params, state, frame, dt, *, gaze=None, key=None):
+    """Show one frame, then advance the state over its duration.
+
+    Parameters
+    ----------
+    params : Params
+    state : State
+        State at the time the frame is shown.
+    frame : array, shape (H, W, 3)
+        Linear RGB, cd/m2.
+    dt : float
+        How long the frame is held, s.
+    gaze : array, shape (2,), optional
+        Gaze point ``(x, y)``, pixels (``"foveal"`` goal).
+    key : ignored
+        The operator is deterministic; accepted so that all operators share
+        one signature.
+
+    Returns
+    -------
+    (State, array)
+        The state after ``dt`` and the display frame ``(H, W, 3)`` in [0, 1].
+    """
+    frame = _check_frames(frame, 3, "frame")
+    dt = _check_dt(dt, 1)[0]
+    G_rod, G_cone = frame_goals(params, frame, gaze)
+    out = tone_map(params, observer(params, state), frame)
+    return advance(params, state, G_rod, G_cone, dt), out
+
+
+@eqx.filter_jit
+def run(params, frames, dt, *, gaze=None, key=None, state=None):
+    """Tone-map a sequence with time-dependent adaptation.
+
+    Parameters
+    ----------
+    params : Params
+    frames : array, shape (T, H, W, 3)
+        Linear BT.709 RGB, cd/m2, finite and non-negative.
+    dt : float or array, shape (T,)
+        Duration of each frame, s (``1/fps``).
+    gaze : array, shape (T, 2), optional
+        Gaze path ``(x, y)`` in pixels, for the ``"foveal"`` goal (default:
+        the image centre).
+    key : ignored
+        The operator is deterministic.
+    state : State, optional
+        State at the first frame; by default the viewer is fully adapted to
+        the first frame (:func:`init`).
+
+    Returns
+    -------
+    (array, Diagnostics)
+        Display frames ``(T, H, W, 3)``, linear, in [0, 1], and the per-frame
+        record. ``run`` gives the same frames as a loop of :func:`step`.
+
+    Examples
+    --------
+    >>> frames = jnp.full((4, 2, 2, 3), 100.0)
+    >>> out, diag = run(Params(), frames, 1 / 30)
+    >>> out.shape, diag.G_cone.shape
+    ((4, 2, 2, 3), (4,))
+    """
+    frames = _check_frames(frames, 4)
+    T = frames.shape[0]
+    dt = _check_dt(dt, T)
+    if gaze is not None and gaze.shape != (T, 2):
+        raise ValueError(f"gaze: expected shape ({T}, 2) in pixels, got shape {gaze.shape}")
+    if gaze is None:
+        G_rod, G_cone = jax.vmap(lambda f: frame_goals(params, f))(frames)
+    else:
+        G_rod, G_cone = jax.vmap(lambda f, g: frame_goals(params, f, g))(frames, gaze)
+    if state is None:
+        state = static_state(params, G_rod[0], G_cone[0])
+
+    def scan_step(s, inputs):
+        return advance(params, s, *inputs), s
+
+    final_state, states = jax.lax.scan(scan_step, state, (G_rod, G_cone, dt))
+    obs = jax.vmap(lambda s: observer(params, s))(states)
+    out = jax.vmap(lambda o, f: tone_map(params, o, f))(obs, frames)
+    diagnostics = Diagnostics(
+        t=jnp.cumsum(dt) - dt,
+        G_rod=G_rod,
+        G_cone=G_cone,
+        state=states,
+        sigma_rod=obs.sigma_rod,
+        sigma_cone=obs.sigma_cone,
+        rule=obs.rule,
+        curve=jax.vmap(lambda o: curve(params, o))(obs),
+        final_state=final_state,
+    )
+    return out, diagnostics

@@ -1,0 +1,238 @@
+"""Static photoreceptor response: Naka-Rushton law, Hunt's sigma and bleaching.
+
+Pure functions on arrays of any shape, float32 or float64 (they follow the
+dtype of their inputs). Luminance in cd/m2 (scotopic cd/m2 for rods),
+responses dimensionless.
+
+References
+----------
+Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation
+for Fast Realistic Image Display*, Eqs 1-6 (``shared/seeds/000_*.txt``).
+"""
+
+import jax.numpy as jnp
+
+#: Response exponent of Hunt's model (Pattanaik 2000, §4.1.1).
+N_HUNT = 0.73
+
+
+def naka_rushton(L, sigma, B=1.0, n=N_HUNT):
+    """Naka-Rushton response ``R = B L^n / (L^n + sigma^n)`` (Eq 2).
+
+    Parameters
+    ----------
+    L : array
+        Luminance, cd/m2, ``>= 0``.
+    sigma : array
+        Semi-saturation luminance, cd/m2, ``> 0``.
+    B : array
+        Maximum response (pigment bleaching factor), in [0, 1].
+    n : float
+        Exponent.
+
+    Returns
+    -------
+    array
+        Response in ``[0, B)``. Written as ``B x / (1 + x)`` with
+        ``x = (L / sigma)^n`` so that ``L = 0`` and ``L = 1e8`` are finite.
+
+    Examples
+    --------
+    >>> float(naka_rushton(2.0, 2.0, B=0.5))
+    0.25
+    """
+    x = (L / sigma) ** n
+    return B * x / (1.0 + x)
+
+
+def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
+    """Luminance that evokes response ``R``: the inverse of Eq 2.
+
+    ``L = sigma (R / (B - R))^(1/n)``, for ``0 <= R < B``.
+
+    Parameters
+    ----------
+    R : array
+        Response, in ``[0, B)``.
+    sigma : array
+        Semi-saturation luminance, cd/m2.
+    B : array
+        Maximum response.
+    n : float
+        Exponent.
+
+    Returns
+    -------
+    array
+        Luminance in cd/m2.
+
+    Examples
+    --------
+    >>> float(naka_rushton_inverse(0.25, 2.0, B=0.5))
+    2.0
+    """
+    return sigma * (R / (B - R)) ** (1.0 / n)
+
+
+def response_slope(L, sigma, B=1.0, n=N_HUNT):
+    """Slope of Eq 2 per log10 unit of luminance: ``S = dR / dlog10(L)`` (Eq 3).
+
+    The paper writes Eq 3 as a derivative with respect to ``log L`` and the
+    display slope ``S_d = 0.1383`` as a forward difference per log10 unit
+    (§4.3). We use log10 for both, so that the two exponents of the colour
+    path (``S_color`` at the scene, ``1/S_d`` at the display) measure the
+    same thing::
+
+        S = ln(10) n B L^n sigma^n / (L^n + sigma^n)^2
+          = ln(10) n B x / (1 + x)^2,   x = (L / sigma)^n.
+
+    Parameters
+    ----------
+    L : array
+        Luminance, cd/m2.
+    sigma : array
+        Semi-saturation luminance, cd/m2.
+    B : array
+        Maximum response.
+    n : float
+        Exponent.
+
+    Returns
+    -------
+    array
+        Response per log10 unit of luminance; largest, ``ln(10) n B / 4``,
+        at ``L = sigma``.
+
+    Examples
+    --------
+    >>> round(float(response_slope(1.0, 1.0, n=1.0)), 4)  # ln(10) / 4
+    0.5756
+    """
+    x = (L / sigma) ** n
+    return jnp.log(10.0) * n * B * x / (1.0 + x) ** 2
+
+
+def forward_difference_slope(L_white, L_black, sigma, B=1.0, n=N_HUNT):
+    """Forward-difference slope of Eq 2 between two luminances, per log10 unit.
+
+    This is how the paper sets the display's colour exponent ``S_d`` (§4.3):
+    ``(R(L_white) - R(L_black)) / (log10 L_white - log10 L_black)``. With
+    ``L_white = 125``, ``L_black = 125/32``, ``sigma = sigma_cone(25)`` and
+    ``B = 1`` it gives the paper's ``S_d = 0.1383``.
+
+    Examples
+    --------
+    >>> round(float(forward_difference_slope(125.0, 125.0 / 32, sigma_cone(25.0))), 4)
+    0.1383
+    """
+    rise = naka_rushton(L_white, sigma, B, n) - naka_rushton(L_black, sigma, B, n)
+    return rise / (jnp.log10(L_white) - jnp.log10(L_black))
+
+
+def hunt_F_L(A):
+    """Hunt's luminance-level adaptation factor ``F_L`` for cones.
+
+    ``F_L = 0.2 k^4 (5A) + 0.1 (1 - k^4)^2 (5A)^(1/3)``, ``k = 1 / (5A + 1)``,
+    where ``5A`` is the luminance of Hunt's reference white for an adapting
+    luminance ``A`` (cd/m2). Eq 5 of the paper is ``2^(1/n) 5A / F_L``.
+    """
+    k4 = (1.0 / (5.0 * A + 1.0)) ** 4
+    return 0.2 * k4 * (5.0 * A) + 0.1 * (1.0 - k4) ** 2 * (5.0 * A) ** (1.0 / 3.0)
+
+
+def hunt_F_LS(A):
+    """Hunt's scotopic luminance-level adaptation factor ``F_LS`` (rods).
+
+    ``F_LS = 3800 j^2 (5A) + 0.2 (1 - j^2)^4 (5A)^(1/6)``,
+    ``j = 1 / (5e5 A + 1)``, with ``A`` in scotopic cd/m2. This is the
+    denominator of Eq 4 (``19000 = 5 * 3800``, ``0.2615 = 0.2 * 5^(1/6)``)
+    with Hunt's factor 1/2.26 dropped as the paper does. The exponent 4 of
+    ``(1 - j^2)`` and the constant 5e5 of ``j`` are the paper's (Eq 4); some
+    implementations use 5e4 (pfstmo) or an exponent 0.4 (colour-science):
+    the three agree to better than 1e-6 relative above 1e-3 cd/m2.
+    """
+    j2 = (1.0 / (5e5 * A + 1.0)) ** 2
+    return 3800.0 * j2 * (5.0 * A) + 0.2 * (1.0 - j2) ** 4 * (5.0 * A) ** (1.0 / 6.0)
+
+
+def sigma_cone(A, n=N_HUNT):
+    """Cone semi-saturation luminance for adaptation ``A`` (Eq 5).
+
+    ``sigma_cone = 2^(1/n) 5A / F_L(A)``, which with ``n = 0.73`` is the
+    paper's ``12.9223 A / (k^4 A + 0.171 (1 - k^4)^2 A^(1/3))``: the
+    luminance whose response is half of that at Hunt's reference white
+    ``5A``. ``sigma_cone(25) = 646`` cd/m2 (paper, display table).
+
+    Parameters
+    ----------
+    A : array
+        Cone adaptation luminance, cd/m2, ``> 0``.
+
+    Returns
+    -------
+    array
+        Semi-saturation luminance, cd/m2.
+    """
+    return 2.0 ** (1.0 / n) * 5.0 * A / hunt_F_L(A)
+
+
+def sigma_rod(A, n=N_HUNT):
+    """Rod semi-saturation luminance for adaptation ``A`` (Eq 4).
+
+    ``sigma_rod = 2^(1/n) 5A / F_LS(A)``.
+
+    Notes
+    -----
+    Eq 4 as printed has the numerator ``2.5874 A``, which is ``2^(1/n) A``
+    without the factor 5 of reference white that Eq 5 carries
+    (``12.9223 = 5 * 2^(1/n)``). At 25 cd/m2 the printed form gives 145
+    cd/m2, while the paper's own display table lists ``sigma_rod = 722``
+    cd/m2; ``12.9223 A / (...)`` gives 722.4. We follow the table and the
+    structure of Eq 5 (both derive sigma from reference white ``5A``), and
+    read the printed 2.5874 as a typesetting slip.
+
+    Parameters
+    ----------
+    A : array
+        Rod adaptation luminance, scotopic cd/m2, ``> 0``.
+
+    Returns
+    -------
+    array
+        Semi-saturation luminance, scotopic cd/m2.
+    """
+    return 2.0 ** (1.0 / n) * 5.0 * A / hunt_F_LS(A)
+
+
+def bleach_cone(A):
+    """Hunt's static cone bleaching factor ``B = 2e6 / (2e6 + A)`` (Eq 6).
+
+    Parameters
+    ----------
+    A : array
+        Cone adaptation luminance, cd/m2.
+
+    Returns
+    -------
+    array
+        Fraction of unbleached pigment, in (0, 1].
+    """
+    return 2e6 / (2e6 + A)
+
+
+def bleach_rod(A):
+    """Hunt's static rod bleaching factor ``B = 0.04 / (0.04 + A)`` (Eq 6).
+
+    ``bleach_rod(25) = 0.0016`` (paper, display table).
+
+    Parameters
+    ----------
+    A : array
+        Rod adaptation luminance, scotopic cd/m2.
+
+    Returns
+    -------
+    array
+        Fraction of unbleached pigment, in (0, 1].
+    """
+    return 0.04 / (0.04 + A)

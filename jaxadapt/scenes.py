@@ -1,0 +1,243 @@
+"""Built-in calibrated scenes: linear BT.709 RGB frames in absolute cd/m2.
+
+A :class:`Scene` knows its frame times and renders any of them on demand, so
+long sequences are made chunk by chunk and never held whole in memory.
+
+* :func:`title_step`: the title-page sequence of Pattanaik et al. (2000), §5:
+  a ColorChecker statically adapted to moonlight (goal 0.01 cd/m2), then
+  suddenly lit to a 1000 cd/m2 goal, frames 30 ms apart.
+* :func:`tunnel_drive`: a drive through a highway tunnel on a sunny day
+  (road about 5000 cd/m2 outside, 5 cd/m2 inside), 30 fps, 20 s (§5, Fig. 7).
+"""
+
+from typing import Callable, NamedTuple
+
+import colour
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxadapt.color import RGB709_TO_XYZ
+
+
+class Scene(NamedTuple):
+    """A calibrated frame sequence.
+
+    Attributes
+    ----------
+    name : str
+    times : numpy array, (T,)
+        Frame times, s.
+    dt : numpy array, (T,)
+        Frame durations, s.
+    render : callable
+        ``render(times) -> (K, H, W, 3)`` frames in cd/m2 at the given times.
+    gaze : callable
+        ``gaze(times) -> (K, 2)`` gaze points ``(x, y)`` in pixels.
+    goal : str
+        Adaptation goal that the paper used for this scene.
+    adaptation : float or None
+        Luminance (cd/m2) the viewer is statically adapted to before the
+        first frame; None to adapt to the first frame's goal.
+    """
+
+    name: str
+    times: np.ndarray
+    dt: np.ndarray
+    render: Callable
+    gaze: Callable
+    goal: str
+    adaptation: float | None
+
+
+def _centre_gaze(width, height):
+    def gaze(times):
+        return jnp.tile(jnp.array([(width - 1) / 2.0, (height - 1) / 2.0]), (len(times), 1))
+
+    return gaze
+
+
+# -- ColorChecker -------------------------------------------------------------
+
+
+def colorchecker_rgb(illuminant="D65"):
+    """Linear BT.709 RGB of the 24 ColorChecker patches, relative to white = 1.
+
+    Reflectances from colour-science (``ColorChecker N Ohta``), integrated
+    against the CIE 1931 observer under ``illuminant``; white here means a
+    perfect diffuser, so the white patch (no. 19) is about 0.9.
+
+    Returns
+    -------
+    numpy array, shape (4, 6, 3)
+        Rows and columns as on the chart.
+    """
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
+    patches = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"].values()
+    XYZ = np.array([colour.sd_to_XYZ(sd, cmfs, sd_illuminant) for sd in patches]) / 100.0
+    rgb = XYZ @ np.linalg.inv(RGB709_TO_XYZ).T
+    return np.clip(rgb, 0.0, None).reshape(4, 6, 3)
+
+
+def colorchecker_image(width, height, white_luminance, surround=0.2):
+    """A ColorChecker filling a ``(height, width)`` frame, in cd/m2.
+
+    Patches on a grid with thin borders of a grey surround of reflectance
+    ``surround``; the frame is scaled so that a perfect white diffuser has
+    luminance ``white_luminance`` cd/m2.
+    """
+    patches = colorchecker_rgb()
+    y = (np.arange(height) + 0.5) / height * 4
+    x = (np.arange(width) + 0.5) / width * 6
+    row, col = np.floor(y).astype(int), np.floor(x).astype(int)
+    inside = (np.abs(y - row - 0.5)[:, None] < 0.4) & (np.abs(x - col - 0.5)[None, :] < 0.4)
+    image = np.where(inside[..., None], patches[row[:, None], col[None, :]], surround)
+    return image * white_luminance
+
+
+def title_step(width=384, height=256, duration=1.5, frame_time=0.030,
+               moonlight_goal=0.01, sunlight_goal=1000.0):
+    """The moonlight-to-sunlight step of the paper's title page (§5).
+
+    Frame 0 shows the chart under moonlight, the viewer statically adapted
+    to ``moonlight_goal``; from frame 1 on, the chart is lit so that the
+    goal (one fifth of white, the ``"white_fraction"`` goal) is
+    ``sunlight_goal``.
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size, pixels.
+    duration : float
+        Length of the sequence, s.
+    frame_time : float
+        Frame spacing ``T``, s (30 ms in the paper).
+    moonlight_goal, sunlight_goal : float
+        Adaptation goals before and after the step, cd/m2.
+    """
+    T = int(round(duration / frame_time))
+    times = np.arange(T) * frame_time
+    chart = jnp.asarray(colorchecker_image(width, height, 1.0), dtype=jnp.float32)
+    white = colorchecker_rgb()[3, 0] @ RGB709_TO_XYZ[1]
+    scale_moon, scale_sun = 5 * moonlight_goal / white, 5 * sunlight_goal / white
+
+    def render(t):
+        scale = jnp.where(jnp.asarray(t) > 0.5 * frame_time, scale_sun, scale_moon)
+        return chart[None] * scale[:, None, None, None].astype(chart.dtype)
+
+    return Scene("title-step", times, np.full(T, frame_time), render,
+                 _centre_gaze(width, height), "white_fraction", moonlight_goal)
+
+
+# -- the tunnel drive ---------------------------------------------------------
+
+#: Surfaces of the tunnel scene: photopic luminance (cd/m2) and colour
+#: (relative linear BT.709 RGB).
+_SURFACES = {
+    "sky": (8000.0, (0.75, 0.95, 1.35)),
+    "road": (5000.0, (1.0, 1.0, 0.98)),
+    "grass": (1500.0, (0.7, 1.15, 0.45)),
+    "hill": (2500.0, (1.1, 1.0, 0.85)),
+    "road_t": (5.0, (1.1, 1.0, 0.75)),
+    "wall_t": (7.0, (1.05, 1.0, 0.85)),
+}
+#: Lane markings are this much brighter than the road.
+_MARKING = 1.6
+
+
+def _surface_rgb(luminance, colour_rgb):
+    """RGB (cd/m2) of a colour scaled to a given photopic luminance."""
+    c = np.asarray(colour_rgb)
+    return c * luminance / (c @ RGB709_TO_XYZ[1])
+
+
+def tunnel_drive(width=480, height=270, duration=20.0, fps=30.0, speed=25.0,
+                 entrance=100.0, length=250.0):
+    """A drive through a straight highway tunnel on a sunny day (§5, Fig. 7).
+
+    A pinhole camera 1.2 m above a straight road moves at ``speed`` m/s. The
+    tunnel is a box 10 m wide and 6 m high from ``entrance`` to
+    ``entrance + length`` metres, cut into a hillside; rays are cast
+    exactly through the box, so the mouth grows as it nears, the interior
+    (road 5 cd/m2, unlit as in the paper's Fig. 7) fills the view, and the
+    exit grows as a bright opening. Outside, the sunlit road is 5000 cd/m2
+    and the sky 8000 cd/m2. The gaze rests on the road 40 m ahead, as the
+    paper's foveal goal does ("directed the foveal center to the roadway
+    surface as a driver might").
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size, pixels (horizontal field of view 60 degrees).
+    duration : float
+        Length, s.
+    fps : float
+        Frames per second.
+    speed : float
+        Speed, m/s (90 km/h).
+    entrance, length : float
+        Distance to the tunnel mouth and tunnel length, m.
+    """
+    T = int(round(duration * fps))
+    times = np.arange(T) / fps
+    focal = 0.5 * width / np.tan(np.radians(30.0))
+    cam_h, half_w, tunnel_h, hill_h = 1.2, 5.0, 6.0, 40.0
+    gaze_distance = 40.0
+    gaze_row = (height - 1) / 2.0 + focal * cam_h / gaze_distance
+    u = (jnp.arange(width) - (width - 1) / 2.0) / focal
+    v = ((height - 1) / 2.0 - jnp.arange(height)) / focal  # up is positive
+    x, y = jnp.meshgrid(u, v)
+    colours = {k: jnp.asarray(_surface_rgb(*v), dtype=jnp.float32) for k, v in _SURFACES.items()}
+    z0, z1 = entrance, entrance + length
+
+    def ground(depth, z_cam, road, grass):
+        """Road (with dashed centre line) or verge at a ground depth."""
+        lateral = jnp.abs(x * depth)
+        dash = (jnp.mod(z_cam + depth, 12.0) < 6.0) & (lateral < 0.12)
+        surface = jnp.where((lateral < half_w)[..., None], road, grass)
+        return surface * jnp.where(dash, _MARKING, 1.0)[..., None]
+
+    def outside(z_cam, beyond):
+        """Sunlit world; ``beyond``: depth at which rays leave the tunnel."""
+        depth = jnp.where(y < 0, cam_h / jnp.maximum(-y, 1e-9), jnp.inf)
+        world = jnp.where((y < 0)[..., None], ground(depth, z_cam, colours["road"],
+                                                     colours["grass"]), colours["sky"])
+        # the hillside around the mouth, seen from before the tunnel
+        d = z0 - z_cam
+        on_hill = (d > 0) & (y * d < hill_h - cam_h) & (depth > d) & ~beyond
+        return jnp.where(on_hill[..., None], colours["hill"], world)
+
+    def interior(depth, z_cam):
+        """Unlit tunnel surfaces, with panel joints every 8 m."""
+        floor = y < 0
+        surface = jnp.where(floor[..., None], ground(depth, z_cam, colours["road_t"],
+                                                     colours["road_t"]), colours["wall_t"])
+        joint = jnp.mod(z_cam + depth, 8.0) < 0.4
+        return surface * jnp.where(joint & ~floor, 0.5, 1.0)[..., None]
+
+    def frame(t):
+        z_cam = speed * t
+        # depth at which a ray would hit the tunnel's walls, ceiling or floor
+        walls = half_w / jnp.maximum(jnp.abs(x), 1e-9)
+        ceiling = jnp.where(y > 0, (tunnel_h - cam_h) / jnp.maximum(y, 1e-9), jnp.inf)
+        floor = jnp.where(y < 0, cam_h / jnp.maximum(-y, 1e-9), jnp.inf)
+        hit = jnp.minimum(walls, jnp.minimum(ceiling, floor))
+        d_in, d_out = z0 - z_cam, z1 - z_cam
+        # a ray is inside the box between max(d_in, 0) and min(hit, d_out)
+        enters = (d_out > 0) & ((d_in <= 0) | (hit >= d_in))
+        sees_interior = enters & (hit < d_out)
+        leaves = enters & (hit >= d_out)
+        image = jnp.where(sees_interior[..., None], interior(hit, z_cam), outside(z_cam, leaves))
+        return image
+
+    render = jax.jit(jax.vmap(frame))
+
+    def gaze(times):
+        return jnp.tile(jnp.array([(width - 1) / 2.0, gaze_row]), (len(times), 1))
+
+    return Scene("tunnel", times, np.full(T, 1.0 / fps), lambda t: render(jnp.asarray(t)),
+                 gaze, "foveal", None)
+
+
+SCENES = {"tunnel": tunnel_drive, "title-step": title_step}
