@@ -29,7 +29,9 @@ def _size(text):
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 480x270, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT, e.g. 480x270, got {text!r}"
+        ) from None
     if w < 2 or h < 2:
         raise argparse.ArgumentTypeError(f"expected a size of at least 2x2, got {text!r}")
     return w, h
@@ -39,7 +41,7 @@ def _positive(text):
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
     if not (value > 0 and np.isfinite(value)):
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return value
@@ -64,47 +66,74 @@ def build_parser():
         "sheet, a plot of the adaptation state and diagnostics.csv into --out.",
     )
     render.add_argument(
-        "files", nargs="*", metavar="FILE",
+        "files",
+        nargs="*",
+        metavar="FILE",
         help="HDR input (EXR, Radiance HDR, PFM, float TIFF): one image, or the frames of "
         "a sequence in order (e.g. a shell glob of a numbered sequence)",
     )
     render.add_argument(
-        "--scene", choices=sorted(SCENES), default="tunnel",
+        "--scene",
+        choices=sorted(SCENES),
+        default="tunnel",
         help="built-in scene when no FILE is given (default: tunnel)",
     )
     render.add_argument(
-        "--size", type=_size, default=None, metavar="WxH",
+        "--size",
+        type=_size,
+        default=None,
+        metavar="WxH",
         help="frame size of the built-in scene (default: 480x270 tunnel, 384x256 title-step)",
     )
     render.add_argument(
-        "--duration", type=_positive, default=None, metavar="S",
+        "--duration",
+        type=_positive,
+        default=None,
+        metavar="S",
         help="length of the built-in scene in seconds (default: the scene's own)",
     )
     render.add_argument(
-        "--fps", type=_positive, default=30.0,
+        "--fps",
+        type=_positive,
+        default=30.0,
         help="frame rate of FILE sequences, frames per second (default: 30)",
     )
     render.add_argument(
-        "--multiplier", type=_positive, default=1.0,
+        "--multiplier",
+        type=_positive,
+        default=1.0,
         help="multiply input values by this to calibrate them to cd/m2 (default: 1)",
     )
     render.add_argument(
-        "--adaptation-goal", choices=GOALS, default=None,
+        "--adaptation-goal",
+        choices=GOALS,
+        default=None,
         help="how the adaptation goal of each frame is found (default: the scene's own; "
         "log_average for files)",
     )
     render.add_argument(
-        "--pixels-per-degree", type=_positive, default=30.0,
-        help="display resolution at the eye, for the foveal goal (default: 30)",
+        "--pixels-per-degree",
+        type=_positive,
+        default=None,
+        help="resolution of the frames at the eye, for the foveal goal (default: the "
+        "scene's own; 30 for files)",
     )
-    render.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: ./out)")
     render.add_argument(
-        "--format", action="append", choices=FORMATS, default=None, dest="formats",
+        "--out", type=Path, default=Path("out"), help="output folder (default: ./out)"
+    )
+    render.add_argument(
+        "--format",
+        action="append",
+        choices=FORMATS,
+        default=None,
+        dest="formats",
         help="output format, repeatable: png (sRGB frames), mp4 (video), exr or pfm "
         "(linear display values in [0, 1], one file per frame); default: png and mp4",
     )
     render.add_argument(
-        "--encoding", choices=("srgb", "gamma"), default="srgb",
+        "--encoding",
+        choices=("srgb", "gamma"),
+        default="srgb",
         help="display encoding of png and mp4 output (default: srgb; gamma is 2.2)",
     )
     render.add_argument(
@@ -119,9 +148,10 @@ def build_parser():
 class Source:
     """Frames to render, produced chunk by chunk."""
 
-    def __init__(self, times, dt, render, gaze, goal, adaptation, name):
+    def __init__(self, times, dt, render, gaze, goal, adaptation, name, pixels_per_degree):
         self.times, self.dt, self.render, self.gaze = times, dt, render, gaze
         self.goal, self.adaptation, self.name = goal, adaptation, name
+        self.pixels_per_degree = pixels_per_degree
 
 
 def scene_source(args):
@@ -137,8 +167,16 @@ def scene_source(args):
     def render(idx):
         return np.asarray(scene.render(scene.times[idx])) * args.multiplier
 
-    return Source(scene.times, scene.dt, render, lambda idx: scene.gaze(scene.times[idx]),
-                  scene.goal, scene.adaptation, scene.name)
+    return Source(
+        scene.times,
+        scene.dt,
+        render,
+        lambda idx: scene.gaze(scene.times[idx]),
+        scene.goal,
+        scene.adaptation,
+        scene.name,
+        scene.pixels_per_degree,
+    )
 
 
 def file_source(args):
@@ -170,14 +208,32 @@ def file_source(args):
 
     T = len(paths)
     centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
-    return Source(np.arange(T) / args.fps, np.full(T, 1.0 / args.fps), render,
-                  lambda idx: np.tile(centre, (len(idx), 1)), "log_average", None, "files")
+    return Source(
+        np.arange(T) / args.fps,
+        np.full(T, 1.0 / args.fps),
+        render,
+        lambda idx: np.tile(centre, (len(idx), 1)),
+        "log_average",
+        None,
+        "files",
+        30.0,
+    )
 
 
 # -- outputs ------------------------------------------------------------------
 
-DIAGNOSTIC_COLUMNS = ("t", "G_rod", "G_cone", "A_rod", "A_cone", "B_rod", "B_cone",
-                      "sigma_rod", "sigma_cone", "rule")
+DIAGNOSTIC_COLUMNS = (
+    "t",
+    "G_rod",
+    "G_cone",
+    "A_rod",
+    "A_cone",
+    "B_rod",
+    "B_cone",
+    "sigma_rod",
+    "sigma_cone",
+    "rule",
+)
 
 
 def write_diagnostics(path, diag):
@@ -212,10 +268,15 @@ def plot_adaptation(path, diag, title):
     ax = axes[2]
     picks = np.unique(np.linspace(0, len(t) - 1, 8).round().astype(int))
     colors = plt.cm.viridis(np.linspace(0, 1, len(picks)))
-    for c, i in zip(colors, picks):
-        ax.plot(np.asarray(CURVE_LOG10_LUMINANCE), diag["curve"][i], color=c, label=f"t={t[i]:.2f} s")
-    ax.set(xlabel="scene luminance (log$_{10}$ cd/m$^2$)", ylabel="display value (linear)",
-           title="scene-to-display curve")
+    for c, i in zip(colors, picks, strict=False):
+        ax.plot(
+            np.asarray(CURVE_LOG10_LUMINANCE), diag["curve"][i], color=c, label=f"t={t[i]:.2f} s"
+        )
+    ax.set(
+        xlabel="scene luminance (log$_{10}$ cd/m$^2$)",
+        ylabel="display value (linear)",
+        title="scene-to-display curve",
+    )
     ax.legend(fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
@@ -230,7 +291,9 @@ def contact_sheet(frames, columns=4):
     sheet = np.full((rows * (H + 4) + 4, columns * (W + 4) + 4, 3), 255, np.uint8)
     for k in range(K):
         r, c = divmod(k, columns)
-        sheet[4 + r * (H + 4): 4 + r * (H + 4) + H, 4 + c * (W + 4): 4 + c * (W + 4) + W] = frames[k]
+        sheet[4 + r * (H + 4) : 4 + r * (H + 4) + H, 4 + c * (W + 4) : 4 + c * (W + 4) + W] = (
+            frames[k]
+        )
     return sheet
 
 
@@ -249,7 +312,9 @@ def render(args, console):
     formats = args.formats or ["png", "mp4"]
     source = file_source(args) if args.files else scene_source(args)
     goal = args.adaptation_goal or source.goal
-    params = op.Params(goal=goal, pixels_per_degree=args.pixels_per_degree)
+    params = op.Params(
+        goal=goal, pixels_per_degree=args.pixels_per_degree or source.pixels_per_degree
+    )
     encode = display.ENCODINGS[args.encoding]
 
     out = args.out
@@ -269,24 +334,31 @@ def render(args, console):
         with contextlib.ExitStack() as stack:
             send_video = (
                 stack.enter_context(io.video_writer(staging / "video.mp4", fps))
-                if "mp4" in formats else (lambda frames: None)
+                if "mp4" in formats
+                else (lambda frames: None)
             )
-            progress = stack.enter_context(Progress(console=console))
+            progress = stack.enter_context(Progress(console=console, transient=True))
             task = progress.add_task(f"rendering {source.name}", total=T)
             state = None
             for start in range(0, T, args.chunk):
                 idx = np.arange(start, min(start + args.chunk, T))
-                padded = np.pad(idx, (0, args.chunk - len(idx)), mode="edge") if T > args.chunk else idx
+                padded = (
+                    np.pad(idx, (0, args.chunk - len(idx)), mode="edge") if T > args.chunk else idx
+                )
                 frames = jnp.asarray(source.render(padded), dtype=jnp.float32)
                 if state is None and source.adaptation is not None:
                     state = op.init(params, None, adaptation=source.adaptation)
                 out_frames, diag = op.run(
-                    params, frames, jnp.asarray(source.dt[padded], jnp.float32),
-                    gaze=jnp.asarray(source.gaze(padded), jnp.float32), state=state,
+                    params,
+                    frames,
+                    jnp.asarray(source.dt[padded], jnp.float32),
+                    gaze=jnp.asarray(source.gaze(padded), jnp.float32),
+                    state=state,
                 )
                 n = len(idx)
-                state = op.State(*(s[n] if n < len(padded) else f
-                                   for s, f in zip(diag.state, diag.final_state)))
+                # the state after the last real frame of a padded chunk
+                pairs = zip(diag.state, diag.final_state, strict=True)
+                state = op.State(*(s[n] if n < len(padded) else f for s, f in pairs))
                 linear = np.asarray(out_frames[:n])
                 coded = display.to_uint8(encode(linear))
                 for k, i in enumerate(idx):
@@ -305,22 +377,34 @@ def render(args, console):
         table["t"] = source.times
         write_diagnostics(staging / "diagnostics.csv", table)
         io.write_image(staging / "contact_sheet.png", contact_sheet(np.stack(contact)))
-        plot_adaptation(staging / "adaptation.png", table,
-                        f"{source.name}: Pattanaik et al. 2000, goal {goal}")
+        plot_adaptation(
+            staging / "adaptation.png", table, f"{source.name}: Pattanaik et al. 2000, goal {goal}"
+        )
         written = sorted(p.name for p in staging.iterdir())
         for name in written:
             (staging / name).replace(out / name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    console.print(f"wrote {len(written)} files to {out}/ (diagnostics.csv, contact_sheet.png, "
-                  f"adaptation.png, {T} frames)")
+    console.print(
+        f"wrote {len(written)} files to {out}/ (diagnostics.csv, contact_sheet.png, "
+        f"adaptation.png, {T} frames)"
+    )
 
 
 def _diag_table(diag, n):
     s = diag.state
-    cols = {"G_rod": diag.G_rod, "G_cone": diag.G_cone, "A_rod": s.A_rod, "A_cone": s.A_cone,
-            "B_rod": s.B_rod, "B_cone": s.B_cone, "sigma_rod": diag.sigma_rod,
-            "sigma_cone": diag.sigma_cone, "rule": diag.rule, "curve": diag.curve}
+    cols = {
+        "G_rod": diag.G_rod,
+        "G_cone": diag.G_cone,
+        "A_rod": s.A_rod,
+        "A_cone": s.A_cone,
+        "B_rod": s.B_rod,
+        "B_cone": s.B_cone,
+        "sigma_rod": diag.sigma_rod,
+        "sigma_cone": diag.sigma_cone,
+        "rule": diag.rule,
+        "curve": diag.curve,
+    }
     return {k: np.asarray(v)[:n] for k, v in cols.items()}
 
 

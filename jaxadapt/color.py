@@ -39,9 +39,12 @@ def _sp_ratio_d65():
         .align(shape)
         .values
     )
-    v_photopic = colour.colorimetry.SDS_LEFS_PHOTOPIC[
-        "CIE 1924 Photopic Standard Observer"
-    ].copy().align(shape).values
+    v_photopic = (
+        colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"]
+        .copy()
+        .align(shape)
+        .values
+    )
     return 1700.0 * np.dot(d65, v_scotopic) / (683.0 * np.dot(d65, v_photopic))
 
 

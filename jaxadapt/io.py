@@ -72,6 +72,9 @@ def atomic_path(path):
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would outlive the rename
     try:
         yield tmp
         os.replace(tmp, path)
@@ -116,7 +119,10 @@ def video_writer(path, fps):
             frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
             if writer is None:
                 writer = imageio_ffmpeg.write_frames(
-                    tmp, (W + W % 2, H + H % 2), fps=fps, macro_block_size=1,
+                    tmp,
+                    (W + W % 2, H + H % 2),
+                    fps=fps,
+                    macro_block_size=1,
                     ffmpeg_log_level="error",
                 )
                 with warnings.catch_warnings():

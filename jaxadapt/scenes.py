@@ -10,7 +10,8 @@ long sequences are made chunk by chunk and never held whole in memory.
   (road about 5000 cd/m2 outside, 5 cd/m2 inside), 30 fps, 20 s (§5, Fig. 7).
 """
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import colour
 import jax
@@ -39,6 +40,8 @@ class Scene(NamedTuple):
     adaptation : float or None
         Luminance (cd/m2) the viewer is statically adapted to before the
         first frame; None to adapt to the first frame's goal.
+    pixels_per_degree : float
+        Resolution of the frames at the viewer's eye.
     """
 
     name: str
@@ -48,6 +51,7 @@ class Scene(NamedTuple):
     gaze: Callable
     goal: str
     adaptation: float | None
+    pixels_per_degree: float
 
 
 def _centre_gaze(width, height):
@@ -96,8 +100,9 @@ def colorchecker_image(width, height, white_luminance, surround=0.2):
     return image * white_luminance
 
 
-def title_step(width=384, height=256, duration=1.5, frame_time=0.030,
-               moonlight_goal=0.01, sunlight_goal=1000.0):
+def title_step(
+    width=384, height=256, duration=1.5, frame_time=0.030, moonlight_goal=0.01, sunlight_goal=1000.0
+):
     """The moonlight-to-sunlight step of the paper's title page (§5).
 
     Frame 0 shows the chart under moonlight, the viewer statically adapted
@@ -126,8 +131,16 @@ def title_step(width=384, height=256, duration=1.5, frame_time=0.030,
         scale = jnp.where(jnp.asarray(t) > 0.5 * frame_time, scale_sun, scale_moon)
         return chart[None] * scale[:, None, None, None].astype(chart.dtype)
 
-    return Scene("title-step", times, np.full(T, frame_time), render,
-                 _centre_gaze(width, height), "white_fraction", moonlight_goal)
+    return Scene(
+        "title-step",
+        times,
+        np.full(T, frame_time),
+        render,
+        _centre_gaze(width, height),
+        "white_fraction",
+        moonlight_goal,
+        width / 40.0,
+    )
 
 
 # -- the tunnel drive ---------------------------------------------------------
@@ -152,8 +165,9 @@ def _surface_rgb(luminance, colour_rgb):
     return c * luminance / (c @ RGB709_TO_XYZ[1])
 
 
-def tunnel_drive(width=480, height=270, duration=20.0, fps=30.0, speed=25.0,
-                 entrance=100.0, length=250.0):
+def tunnel_drive(
+    width=480, height=270, duration=20.0, fps=30.0, speed=25.0, entrance=100.0, length=250.0
+):
     """A drive through a straight highway tunnel on a sunny day (§5, Fig. 7).
 
     A pinhole camera 1.2 m above a straight road moves at ``speed`` m/s. The
@@ -181,8 +195,9 @@ def tunnel_drive(width=480, height=270, duration=20.0, fps=30.0, speed=25.0,
     """
     T = int(round(duration * fps))
     times = np.arange(T) / fps
-    focal = 0.5 * width / np.tan(np.radians(30.0))
-    cam_h, half_w, tunnel_h, hill_h = 1.2, 5.0, 6.0, 40.0
+    fov = 60.0
+    focal = 0.5 * width / np.tan(np.radians(fov / 2))
+    cam_h, half_w, tunnel_h, hill_h = 1.2, 5.0, 6.0, 15.0
     gaze_distance = 40.0
     gaze_row = (height - 1) / 2.0 + focal * cam_h / gaze_distance
     u = (jnp.arange(width) - (width - 1) / 2.0) / focal
@@ -201,8 +216,11 @@ def tunnel_drive(width=480, height=270, duration=20.0, fps=30.0, speed=25.0,
     def outside(z_cam, beyond):
         """Sunlit world; ``beyond``: depth at which rays leave the tunnel."""
         depth = jnp.where(y < 0, cam_h / jnp.maximum(-y, 1e-9), jnp.inf)
-        world = jnp.where((y < 0)[..., None], ground(depth, z_cam, colours["road"],
-                                                     colours["grass"]), colours["sky"])
+        world = jnp.where(
+            (y < 0)[..., None],
+            ground(depth, z_cam, colours["road"], colours["grass"]),
+            colours["sky"],
+        )
         # the hillside around the mouth, seen from before the tunnel
         d = z0 - z_cam
         on_hill = (d > 0) & (y * d < hill_h - cam_h) & (depth > d) & ~beyond
@@ -211,8 +229,11 @@ def tunnel_drive(width=480, height=270, duration=20.0, fps=30.0, speed=25.0,
     def interior(depth, z_cam):
         """Unlit tunnel surfaces, with panel joints every 8 m."""
         floor = y < 0
-        surface = jnp.where(floor[..., None], ground(depth, z_cam, colours["road_t"],
-                                                     colours["road_t"]), colours["wall_t"])
+        surface = jnp.where(
+            floor[..., None],
+            ground(depth, z_cam, colours["road_t"], colours["road_t"]),
+            colours["wall_t"],
+        )
         joint = jnp.mod(z_cam + depth, 8.0) < 0.4
         return surface * jnp.where(joint & ~floor, 0.5, 1.0)[..., None]
 
@@ -236,8 +257,16 @@ def tunnel_drive(width=480, height=270, duration=20.0, fps=30.0, speed=25.0,
     def gaze(times):
         return jnp.tile(jnp.array([(width - 1) / 2.0, gaze_row]), (len(times), 1))
 
-    return Scene("tunnel", times, np.full(T, 1.0 / fps), lambda t: render(jnp.asarray(t)),
-                 gaze, "foveal", None)
+    return Scene(
+        "tunnel",
+        times,
+        np.full(T, 1.0 / fps),
+        lambda t: render(jnp.asarray(t)),
+        gaze,
+        "foveal",
+        None,
+        width / fov,
+    )
 
 
 SCENES = {"tunnel": tunnel_drive, "title-step": title_step}

@@ -91,7 +91,7 @@ def foveal_log_average(L, gaze, pixels_per_degree, floor=LUMINANCE_FLOOR):
     array, shape ()
         Goal, cd/m2.
     """
-    w = foveal_weights(L.shape[-2:], gaze, pixels_per_degree)
+    w = foveal_weights(L.shape[-2:], gaze, pixels_per_degree, dtype=L.dtype)
     return jnp.exp(jnp.sum(w * jnp.log(jnp.maximum(L, floor)), axis=(-2, -1)))
 
 

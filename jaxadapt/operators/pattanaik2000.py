@@ -246,7 +246,9 @@ def display_luminance(params, R):
     R = jnp.clip(R, 0.0, white)
 
     def refine(_, L):
-        return naka_rushton_inverse(R - naka_rushton(L, sigma_r, B_rod, params.n), sigma_c, B_cone, params.n)
+        return naka_rushton_inverse(
+            R - naka_rushton(L, sigma_r, B_rod, params.n), sigma_c, B_cone, params.n
+        )
 
     L0 = naka_rushton_inverse(R, sigma_c, B_cone, params.n)
     return jax.lax.fori_loop(0, _INVERSE_ITERATIONS, refine, L0)
@@ -384,21 +386,35 @@ def advance(params, state, G_rod, G_cone, dt):
 
 def _check_frames(frames, rank, name="frames"):
     """Shape checks before tracing, value checks (finite, >= 0) inside jit."""
-    if frames.ndim != rank or frames.shape[-1] != 3:
+    if (
+        frames.ndim != rank
+        or frames.shape[-1] != 3
+        or not jnp.issubdtype(frames.dtype, jnp.floating)
+    ):
         expected = "(T, H, W, 3)" if rank == 4 else "(H, W, 3)"
         raise ValueError(
-            f"{name}: expected linear RGB of shape {expected} in cd/m2, got shape {frames.shape}"
+            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2, "
+            f"got {frames.dtype} of shape {frames.shape}"
         )
     bad = ~jnp.all(jnp.isfinite(frames) & (frames >= 0))
     return eqx.error_if(frames, bad, f"{name}: expected finite, non-negative luminance (cd/m2)")
 
 
 def _check_dt(dt, T):
-    dt = jnp.asarray(dt, dtype=jnp.result_type(float))
     if dt.ndim > 1 or (dt.ndim == 1 and dt.shape[0] != T):
         raise ValueError(f"dt: expected a scalar or shape ({T},) in seconds, got shape {dt.shape}")
     dt = jnp.broadcast_to(dt, (T,))
     return eqx.error_if(dt, ~jnp.all(dt > 0), "dt: expected positive frame durations (s)")
+
+
+def _as_dtype(tree, dtype):
+    """Cast the floating-point arrays of a pytree (params, state) to ``dtype``,
+    so that the operator computes in its input's precision."""
+
+    def cast(x):
+        return x.astype(dtype) if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating) else x
+
+    return jax.tree.map(cast, tree)
 
 
 # -- the contract -------------------------------------------------------------
@@ -430,7 +446,6 @@ def init(params, first_frame, *, gaze=None, adaptation=None):
     return static_state(params, *frame_goals(params, first_frame, gaze))
 
 
-@eqx.filter_jit
 def step(params, state, frame, dt, *, gaze=None, key=None):
     """Show one frame, then advance the state over its duration.
 
@@ -454,14 +469,19 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     (State, array)
         The state after ``dt`` and the display frame ``(H, W, 3)`` in [0, 1].
     """
+    return _step(params, state, jnp.asarray(frame), jnp.asarray(dt), gaze)
+
+
+@eqx.filter_jit
+def _step(params, state, frame, dt, gaze):
     frame = _check_frames(frame, 3, "frame")
+    params, state, dt, gaze = _as_dtype((params, state, dt, gaze), frame.dtype)
     dt = _check_dt(dt, 1)[0]
     G_rod, G_cone = frame_goals(params, frame, gaze)
     out = tone_map(params, observer(params, state), frame)
     return advance(params, state, G_rod, G_cone, dt), out
 
 
-@eqx.filter_jit
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
     """Tone-map a sequence with time-dependent adaptation.
 
@@ -494,7 +514,14 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     >>> out.shape, diag.G_cone.shape
     ((4, 2, 2, 3), (4,))
     """
+    gaze = None if gaze is None else jnp.asarray(gaze)
+    return _run(params, jnp.asarray(frames), jnp.asarray(dt), gaze, state)
+
+
+@eqx.filter_jit
+def _run(params, frames, dt, gaze, state):
     frames = _check_frames(frames, 4)
+    params, state, dt, gaze = _as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
     dt = _check_dt(dt, T)
     if gaze is not None and gaze.shape != (T, 2):

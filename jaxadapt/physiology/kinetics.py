@@ -175,9 +175,7 @@ def integrate(rhs, y0, ts, args, *, rtol=1e-8, atol=1e-10, max_steps=65536):
     """
     ts = jnp.asarray(ts)
     jumps = [a.ts for a in args if isinstance(a, diffrax.LinearInterpolation)]
-    controller = diffrax.PIDController(
-        rtol=rtol, atol=atol, jump_ts=jumps[0] if jumps else None
-    )
+    controller = diffrax.PIDController(rtol=rtol, atol=atol, jump_ts=jumps[0] if jumps else None)
     solution = diffrax.diffeqsolve(
         diffrax.ODETerm(rhs),
         diffrax.Kvaerno5(),

@@ -1,0 +1,140 @@
+"""The command line, end to end, on small inputs."""
+
+import csv
+
+import numpy as np
+import pytest
+
+from jaxadapt import io
+from jaxadapt.cli import main
+
+SMALL = ["--size", "48x32", "--duration", "0.3"]
+
+
+def _run(capsys, *argv):
+    status = main(list(argv))
+    return status, capsys.readouterr().err
+
+
+def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, capsys):
+    out = tmp_path / "out"
+    status, _ = _run(capsys, "render", "--scene", "title-step", *SMALL, "--out", str(out))
+    assert status == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"video.mp4", "contact_sheet.png", "adaptation.png", "diagnostics.csv"} <= names
+    assert len([n for n in names if n.startswith("frame_")]) == 10
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    assert len(rows) == 10 and list(rows[0]) == [
+        "t",
+        "G_rod",
+        "G_cone",
+        "A_rod",
+        "A_cone",
+        "B_rod",
+        "B_cone",
+        "sigma_rod",
+        "sigma_cone",
+        "rule",
+    ]
+    assert float(rows[1]["G_cone"]) == pytest.approx(1000, rel=0.01)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging left
+
+
+def test_tunnel_scene_chunks_give_the_same_as_one_call(tmp_path, capsys):
+    a, b = tmp_path / "a", tmp_path / "b"
+    args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "1", "--format", "exr"]
+    assert _run(capsys, *args, "--out", str(a), "--chunk", "7")[0] == 0
+    assert _run(capsys, *args, "--out", str(b), "--chunk", "64")[0] == 0
+    for k in (0, 13, 29):
+        np.testing.assert_allclose(
+            io.read_hdr(a / f"frame_{k:05d}.exr"), io.read_hdr(b / f"frame_{k:05d}.exr"), atol=1e-6
+        )
+
+
+def test_hdr_files_in_and_linear_files_out(tmp_path, capsys):
+    frames = [np.full((6, 8, 3), v, np.float32) for v in (0.01, 100.0, 100.0)]
+    paths = []
+    for i, (f, ext) in enumerate(zip(frames, (".exr", ".pfm", ".hdr"), strict=False)):
+        paths.append(tmp_path / f"in_{i}{ext}")
+        io.write_image(paths[-1], f)
+    out = tmp_path / "out"
+    status, err = _run(
+        capsys,
+        "render",
+        *map(str, paths),
+        "--format",
+        "pfm",
+        "--fps",
+        "10",
+        "--multiplier",
+        "2",
+        "--out",
+        str(out),
+    )
+    assert status == 0, err
+    result = [io.read_hdr(out / f"frame_{k:05d}.pfm") for k in range(3)]
+    assert all(np.all((r >= 0) & (r <= 1)) for r in result)
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    assert float(rows[1]["G_cone"]) == pytest.approx(200.0, rel=1e-3)  # multiplier applied
+    assert float(rows[2]["t"]) == pytest.approx(0.2)
+
+
+def _assert_one_line_error(status, err, *words):
+    assert status == 2
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("jaxadapt: error:"), err
+    for w in words:
+        assert w in lines[0]
+
+
+def test_missing_file(tmp_path, capsys):
+    status, err = _run(capsys, "render", str(tmp_path / "nope.exr"), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "nope.exr", "no such file")
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_non_hdr_and_unreadable_files(tmp_path, capsys):
+    png = tmp_path / "ldr.png"
+    io.write_image(png, np.zeros((4, 4, 3), np.uint8))
+    status, err = _run(capsys, "render", str(png), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "ldr.png", "expected HDR")
+    junk = tmp_path / "junk.exr"
+    junk.write_bytes(b"not an image")
+    status, err = _run(capsys, "render", str(junk), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "junk.exr")
+
+
+def test_bad_values_leave_earlier_output_untouched(tmp_path, capsys):
+    good, bad = tmp_path / "a.exr", tmp_path / "b.exr"
+    io.write_image(good, np.ones((4, 4, 3), np.float32))
+    io.write_image(bad, np.full((4, 4, 3), -1.0, np.float32))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "frame_00000.png").write_bytes(b"earlier result")
+    status, err = _run(capsys, "render", str(good), str(bad), "--out", str(out))
+    _assert_one_line_error(status, err, "b.exr", "non-negative")
+    assert [p.name for p in out.iterdir()] == ["frame_00000.png"]
+    assert (out / "frame_00000.png").read_bytes() == b"earlier result"
+
+
+def test_frames_of_different_sizes(tmp_path, capsys):
+    a, b = tmp_path / "a.exr", tmp_path / "b.exr"
+    io.write_image(a, np.ones((4, 4, 3), np.float32))
+    io.write_image(b, np.ones((5, 4, 3), np.float32))
+    status, err = _run(capsys, "render", str(a), str(b), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "b.exr", "expected 4x4")
+
+
+def test_unwritable_output(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    status, err = _run(capsys, "render", "--scene", "title-step", *SMALL, "--out", str(blocker))
+    _assert_one_line_error(status, err, "--out", str(blocker))
+
+
+def test_help_explains_every_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    text = capsys.readouterr().out
+    for option in ("--scene", "--fps", "--multiplier", "--adaptation-goal", "--out", "--format"):
+        assert option in text

@@ -1,0 +1,76 @@
+"""Adaptation goals, colour constants and display encodings."""
+
+import colour
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxadapt import color, display, scenes, spatial
+from jaxadapt.operators import goal
+
+
+def test_log_average_floors_black_pixels():
+    L = jnp.array([[0.0, 1e-6], [1.0, 1e6]])
+    assert float(goal.log_average(L)) == pytest.approx(10 ** ((-6 - 6 + 0 + 6) / 4), rel=1e-9)
+    assert float(goal.log_average(jnp.zeros((3, 3)))) == pytest.approx(goal.LUMINANCE_FLOOR)
+
+
+def test_white_fraction_finds_the_chart_white():
+    chart = scenes.colorchecker_image(120, 80, white_luminance=5000.0)
+    L = color.photopic_luminance(jnp.asarray(chart))
+    white_patch = float(scenes.colorchecker_rgb()[3, 0] @ color.W_PHOTOPIC) * 5000.0
+    assert float(goal.white_fraction(L)) == pytest.approx(white_patch / 5, rel=1e-3)
+
+
+def test_foveal_weights_are_normalised_and_centred():
+    w = spatial.foveal_weights((41, 61), jnp.array([20.0, 10.0]), pixels_per_degree=10.0)
+    assert float(w.sum()) == pytest.approx(1.0)
+    assert np.unravel_index(int(jnp.argmax(w)), w.shape) == (10, 20)
+    # half maximum at half a degree (5 px) from the gaze point
+    assert float(w[10, 25] / w[10, 20]) == pytest.approx(0.5, rel=1e-6)
+    far = spatial.foveal_weights((5, 5), jnp.array([1e4, 1e4]), pixels_per_degree=1.0)
+    assert jnp.all(jnp.isfinite(far)) and float(far.sum()) == pytest.approx(1.0)
+
+
+def test_foveal_goal_sees_what_the_gaze_sees():
+    L = jnp.full((40, 80), 5.0).at[:, 40:].set(5000.0)
+    left = goal.foveal_log_average(L, jnp.array([10.0, 20.0]), 4.0)
+    right = goal.foveal_log_average(L, jnp.array([70.0, 20.0]), 4.0)
+    assert float(left) == pytest.approx(5.0, rel=1e-3)
+    assert float(right) == pytest.approx(5000.0, rel=1e-3)
+
+
+def test_photopic_weights_come_from_colour_science():
+    M = colour.RGB_COLOURSPACES["ITU-R BT.709"].matrix_RGB_to_XYZ
+    np.testing.assert_allclose(color.W_PHOTOPIC, M[1])
+    assert color.W_PHOTOPIC.sum() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_scotopic_weights_follow_the_scotopic_curve():
+    # Jacobs et al. 2015, Appendix A, normalised: neutral stays neutral, and
+    # blue counts for more (red for less) than photopically (peak 507 nm).
+    assert color.W_SCOTOPIC.sum() == pytest.approx(1.0)
+    assert color.W_SCOTOPIC[0] == 0.0 and color.W_SCOTOPIC[2] > color.W_PHOTOPIC[2]
+    assert color.SP_RATIO_D65 == pytest.approx(2.46, abs=0.02)
+
+
+def test_srgb_encoding_matches_colour_science():
+    v = np.linspace(0, 1, 101)
+    np.testing.assert_allclose(display.encode_srgb(v), colour.cctf_encoding(v, "sRGB"), atol=1e-7)
+
+
+def test_quantisation_rounds_and_clips():
+    q = display.to_uint8(jnp.array([-0.1, 0.0, 0.6 / 255, 0.5, 1.0, 2.0]))
+    assert q.tolist() == [0, 0, 1, 128, 255, 255]
+
+
+def test_gaussian_blur_matches_scipy_and_keeps_constants():
+    from scipy.ndimage import gaussian_filter
+
+    x = np.random.default_rng(0).uniform(size=(2, 20, 30))
+    expected = np.stack([gaussian_filter(a, 2.0, mode="mirror", truncate=4.0) for a in x])
+    np.testing.assert_allclose(spatial.gaussian_blur(jnp.asarray(x), 2.0), expected, atol=1e-12)
+    wide = spatial.gaussian_blur(jnp.full((5, 7), 3.0), 10.0)  # kernel longer than the image
+    np.testing.assert_allclose(wide, 3.0, rtol=1e-12)
+    with pytest.raises(ValueError, match="sigma: expected a positive width"):
+        spatial.gaussian_kernel(0.0)

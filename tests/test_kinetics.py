@@ -1,0 +1,97 @@
+"""Exact kinetics steps against diffrax, fixed points, and bounds."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxadapt.physiology import kinetics as k
+from jaxadapt.physiology.response import bleach_cone, bleach_rod
+
+ROD = (400.0, 16.0)  # tau (s), c (cd/m2 s): Pattanaik 2000, Eq 7
+CONE = (110.0, 2.2e8)
+
+
+@pytest.mark.parametrize("G", [0.0, 1e-4, 1.0, 1e3, 1e5, 1e8])
+@pytest.mark.parametrize("receptor", [ROD, CONE])
+def test_bleaching_exact_step_matches_diffrax(G, receptor):
+    ts = jnp.array([0.0, 0.01, 0.1, 1.0, 10.0, 100.0])
+    B0 = 0.3
+    reference = k.integrate(k.bleaching_rhs, B0, ts, (G, *receptor), rtol=1e-11, atol=1e-13)
+    exact = k.bleaching_step(B0, G, *receptor, ts)
+    np.testing.assert_allclose(exact, reference, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("t0", [0.150, 0.080])
+def test_neural_exact_step_matches_diffrax(t0):
+    ts = jnp.linspace(0.0, 1.0, 11)
+    reference = k.integrate(k.neural_rhs, 0.01, ts, (1000.0, t0), rtol=1e-11, atol=1e-11)
+    np.testing.assert_allclose(k.neural_step(0.01, 1000.0, t0, ts), reference, rtol=1e-6)
+
+
+def test_bleaching_fixed_point_is_hunts_static_bleaching():
+    G = np.logspace(-6, 8, 29)
+    np.testing.assert_allclose(k.bleaching(G, *ROD).target, bleach_rod(G), rtol=1e-12)
+    np.testing.assert_allclose(k.bleaching(G, *CONE).target, bleach_cone(G), rtol=1e-12)
+    for tau_c, static in ((ROD, bleach_rod), (CONE, bleach_cone)):
+        assert float(k.bleaching_rhs(0.0, static(G), (G, *tau_c)).max()) == pytest.approx(
+            0, abs=1e-15
+        )
+
+
+@settings(max_examples=100)
+@given(B=st.floats(0, 1), G=st.floats(0, 1e8), dt=st.floats(1e-6, 1e4))
+def test_bleaching_stays_in_unit_interval(B, G, dt):
+    for receptor in (ROD, CONE):
+        B1 = float(k.bleaching_step(jnp.float32(B), jnp.float32(G), *receptor, jnp.float32(dt)))
+        assert 0.0 <= B1 <= 1.0
+
+
+def _literal_eq7(B, G, tau, c, T, n):
+    """The explicit update printed as Eq 7 (and used by pfstmo_pattanaik00)."""
+    out = []
+    for _ in range(n):
+        B = B + T * (1 - B) / tau - T * B * G / c
+        out.append(B)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("G", [1000.0, 5000.0])
+def test_literal_eq7_update_fails_where_the_exact_step_does_not(G):
+    # Rods adapted to 0.01 cd/m2, then a goal of 1000 cd/m2 (the title-page
+    # step) or 5000 cd/m2 (the sunlit road of the tunnel), frames 30 ms apart.
+    # The explicit update multiplies B by (1 - T G / c) < 0 each frame: at 1000
+    # cd/m2 the pigment goes negative, above 2 c / T = 1067 cd/m2 it diverges.
+    tau, c = ROD
+    B0 = float(bleach_rod(0.01))
+    euler = _literal_eq7(B0, G, tau, c, 0.03, 20)
+    assert euler.min() < 0
+    if G > 2 * c / 0.03:
+        assert abs(euler[-1]) > 1e6
+    exact = np.array([float(k.bleaching_step(B0, G, tau, c, 0.03 * (i + 1))) for i in range(20)])
+    assert np.all((exact >= 0) & (exact <= 1))
+    assert exact[-1] == pytest.approx(float(bleach_rod(G)), rel=1e-3)
+
+
+def test_exact_steps_converge_to_the_continuous_solution():
+    # A goal ramping from 1 to 1e4 cd/m2 over 2 s: holding it constant over
+    # frames of dt converges to the diffrax solution with a linear input, at
+    # first order in dt.
+    ts = jnp.array([0.0, 2.0])
+    path = k.goal_path(ts, jnp.array([1.0, 1e4]))
+    B0 = float(bleach_rod(1.0))
+    reference = float(
+        k.integrate(k.bleaching_rhs, B0, ts, (path, *ROD), rtol=1e-11, atol=1e-14)[-1]
+    )
+    errors = []
+    for n in (10, 100, 1000):
+        dt = 2.0 / n
+        midpoints = jax.vmap(path.evaluate)((jnp.arange(n) + 0.5) * dt)
+        B = jax.lax.fori_loop(
+            0, n, lambda i, B, dt=dt, G=midpoints: k.bleaching_step(B, G[i], *ROD, dt), B0
+        )
+        errors.append(abs(float(B) - reference))
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[2] < 1e-3 * reference

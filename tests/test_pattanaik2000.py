@@ -1,0 +1,235 @@
+"""The 2000 operator: the paper's rules, the contract, and robustness."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxadapt import scenes
+from jaxadapt.color import photopic_luminance
+from jaxadapt.operators import pattanaik2000 as op
+from jaxadapt.physiology.response import bleach_cone, bleach_rod
+
+P = op.Params()
+
+
+def _sequence(T=6, H=5, W=7, seed=0):
+    rng = np.random.default_rng(seed)
+    levels = np.array([1e-3, 1e-3, 1e3, 1e3, 5.0, 5e4])[:T]
+    texture = rng.uniform(0.05, 1.5, size=(H, W, 3))
+    return jnp.asarray(levels[:, None, None, None] * texture[None])
+
+
+def display_state(params):
+    A = params.display_adaptation
+    return op.State(A, A, bleach_rod(A), params.display_B_cone)
+
+
+def test_rule_1_is_an_identity_for_luminance():
+    # A scene viewer in exactly the display observer's state sees the display
+    # frame as the scene: neutral pixels keep their luminance (display value x
+    # 125 cd/m2 = scene luminance) across the display's reference range.
+    obs = op.observer(P, display_state(P))
+    assert int(obs.rule) == 1
+    L = jnp.geomspace(125 / 32, 125.0, 20)
+    out = op.tone_map(P, obs, jnp.repeat(L[:, None], 3, axis=-1))
+    np.testing.assert_allclose(out * 125.0, jnp.repeat(L[:, None], 3, axis=-1), rtol=1e-9)
+
+
+def test_rule_1_colour_follows_the_papers_exponent():
+    # Colour ratios are raised to S_color(L) / S_d (Eq 3 per log10 unit over
+    # the display's forward-difference slope): unchanged where the local slope
+    # equals S_d, desaturated below and saturated above (see README, choices).
+    obs = op.observer(P, display_state(P))
+    S_d = float(op.display_slope(P))
+    L = jnp.geomspace(1.0, 500.0, 200)
+    slope = op.response_slope(L, obs.sigma_cone, obs.B_cone, P.n)
+    L_match = float(L[jnp.argmin(jnp.abs(slope - S_d))])
+    rgb = jnp.array([1.4, 0.9, 0.6]) / float(photopic_luminance(jnp.array([1.4, 0.9, 0.6])))
+    out = op.tone_map(P, obs, L_match * rgb)
+    ratio_out = out / photopic_luminance(out)
+    np.testing.assert_allclose(ratio_out, rgb, rtol=0.02)
+
+
+def test_rules_cover_bright_dim_and_compressing_scenes():
+    rules = {}
+    for A in (1e-4, 1e-2, 1.0, 25.0, 1e3, 1e6):
+        B = op.State(A, A, bleach_rod(A), bleach_cone(A))
+        rules[A] = int(op.observer(P, B).rule)
+    assert rules[1e6] in (2, 3) and rules[1e-4] in (2, 4)
+    assert set(rules.values()) <= {1, 2, 3, 4}
+
+
+@pytest.mark.parametrize("goal", ["log_average", "white_fraction", "foveal"])
+def test_run_equals_a_loop_of_step(goal):
+    params = op.Params(goal=goal)
+    frames = _sequence()
+    dt = jnp.array([0.03, 0.05, 0.03, 0.5, 0.03, 2.0])
+    out, diag = op.run(params, frames, dt)
+    state = op.init(params, frames[0])
+    for k in range(frames.shape[0]):
+        state, frame_out = op.step(params, state, frames[k], dt[k])
+        np.testing.assert_allclose(frame_out, out[k], rtol=1e-10, atol=1e-12)
+    for a, b in zip(state, diag.final_state, strict=False):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+
+
+def test_steady_state_of_a_long_constant_scene_is_the_static_model():
+    frames = jnp.full((40, 3, 3, 3), 300.0)
+    start = op.init(P, None, adaptation=1e-3)
+    _, diag = op.run(P, frames, 60.0, state=start)  # 40 minutes
+    A = float(diag.G_cone[0])
+    s = diag.final_state
+    assert float(s.A_cone) == pytest.approx(A, rel=1e-9)
+    assert float(s.B_cone) == pytest.approx(float(bleach_cone(A)), rel=1e-9)
+    assert float(s.B_rod) == pytest.approx(float(bleach_rod(float(diag.G_rod[0]))), rel=1e-6)
+
+
+def test_title_step_whites_out_then_recovers():
+    scene = scenes.title_step(48, 32, duration=1.5)
+    params = op.Params(goal=scene.goal)
+    out, diag = op.run(
+        params,
+        scene.render(scene.times),
+        jnp.asarray(scene.dt),
+        state=op.init(params, None, adaptation=scene.adaptation),
+    )
+    mean = jnp.mean(out, axis=(1, 2, 3))
+    assert float(diag.G_cone[1]) == pytest.approx(1000.0, rel=0.01)  # the paper's goal
+    assert float(mean[1]) > 0.9  # "almost entirely white" at T = 30 ms
+    assert float(mean[-1]) < 0.6 and float(mean[-1]) < float(mean[3])  # recovered
+    assert jnp.all((diag.state.B_rod >= 0) & (diag.state.B_rod <= 1))
+
+
+def test_vmap_over_a_batch_of_params_equals_separate_runs():
+    frames = _sequence()
+    t0s = jnp.array([0.05, 0.08, 0.2])
+    batch = eqx.tree_at(lambda p: p.t0_cone, P, t0s)
+    batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (3,) + jnp.shape(x)), batch)
+    batch = eqx.tree_at(lambda p: p.t0_cone, batch, t0s)
+    outs, _ = jax.vmap(lambda p: op.run(p, frames, 0.03))(batch)
+    for i, t0 in enumerate(t0s):
+        single, _ = op.run(op.Params(t0_cone=t0), frames, 0.03)
+        np.testing.assert_allclose(outs[i], single, rtol=1e-10)
+
+
+def test_no_retrace_for_new_values_or_more_steps(monkeypatch):
+    traces = []
+    original = op.tone_map
+
+    def counting(*args):
+        traces.append(1)
+        return original(*args)
+
+    monkeypatch.setattr(op, "tone_map", counting)
+    frames = _sequence(H=11, W=13)  # a shape no other test uses
+    op.run(P, frames, 0.03)
+    n = len(traces)
+    op.run(P, frames * 2.0, 0.04)
+    assert len(traces) == n
+    state = op.init(P, frames[0])
+    for k in range(frames.shape[0]):
+        state, _ = op.step(P, state, frames[k], 0.03)
+    m = len(traces)
+    for k in range(frames.shape[0]):
+        state, _ = op.step(P, state, frames[k] * 3.0, 0.05)
+    assert len(traces) == m
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_black_darkness_and_1e8_are_finite(dtype):
+    frames = jnp.stack(
+        [
+            jnp.zeros((4, 4, 3)),  # total darkness
+            jnp.full((4, 4, 3), 1e8),  # 1e8 cd/m2
+            jnp.zeros((4, 4, 3)).at[0, 0].set(1e8),  # a sun in the dark
+            jnp.zeros((4, 4, 3)).at[1:, :].set(1e-6),  # black pixels, starlight
+        ]
+    ).astype(dtype)
+    out, diag = op.run(P, frames, jnp.array(1 / 30, dtype))
+    assert out.dtype == dtype
+    assert jnp.all(jnp.isfinite(out)) and jnp.all((out >= 0) & (out <= 1))
+    for leaf in jax.tree.leaves(diag):
+        assert jnp.all(jnp.isfinite(leaf))
+
+
+def test_float32_matches_float64():
+    frames = _sequence()
+    out64, _ = op.run(P, frames, 0.03)
+    out32, _ = op.run(P, frames.astype(jnp.float32), jnp.float32(0.03))
+    assert out32.dtype == jnp.float32
+    np.testing.assert_allclose(out32, out64, atol=2e-4)
+
+
+def test_display_inverse_matches_bisection():
+    R = jnp.linspace(0.0, float(op.display_references(P)[0]), 50)
+    L = op.display_luminance(P, R)
+    sigma_r, sigma_c, B_rod, B_cone = op._display_observer(P)
+    lo, hi = jnp.zeros_like(R), jnp.full_like(R, 1e4)
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        above = op.luminance_response(P, mid, mid, sigma_r, sigma_c, B_rod, B_cone) > R
+        lo, hi = jnp.where(above, lo, mid), jnp.where(above, mid, hi)
+    np.testing.assert_allclose(L, 0.5 * (lo + hi), rtol=1e-7, atol=1e-12)
+
+
+def test_gradient_through_run_matches_finite_differences():
+    frames = _sequence()[:4]
+
+    def loss(t0_cone):
+        out, _ = op.run(op.Params(t0_cone=t0_cone), frames, 0.03)
+        return jnp.mean(out)
+
+    g = float(jax.grad(loss)(0.08))
+    h = 1e-6
+    fd = (float(loss(0.08 + h)) - float(loss(0.08 - h))) / (2 * h)
+    assert g == pytest.approx(fd, rel=1e-5)
+    assert abs(g) > 1e-4
+
+
+def test_diagnostic_curve_is_monotone_and_matches_pixels():
+    frames = _sequence()
+    out, diag = op.run(P, frames, 0.03)
+    assert jnp.all(jnp.diff(diag.curve, axis=-1) >= -1e-12)
+    grey = jnp.full((1, 1, 3), 10.0 ** float(op.CURVE_LOG10_LUMINANCE[70]))
+    obs = op.observer(P, jax.tree.map(lambda x: x[2], diag.state))
+    assert float(op.tone_map(P, obs, grey)[0, 0, 1]) == pytest.approx(float(diag.curve[2, 70]))
+
+
+# -- bad input ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "frames, match",
+    [
+        (
+            jnp.ones((4, 4, 3)),
+            r"frames: expected .*\(T, H, W, 3\).* got float64 of shape \(4, 4, 3\)",
+        ),
+        (jnp.ones((2, 4, 4, 4)), r"frames: expected .* of shape \(2, 4, 4, 4\)"),
+    ],
+)
+def test_wrong_shapes_are_named(frames, match):
+    with pytest.raises(ValueError, match=match):
+        op.run(P, frames, 0.03)
+
+
+@pytest.mark.parametrize("bad", [-1.0, jnp.nan, jnp.inf])
+def test_bad_values_are_named(bad):
+    frames = jnp.ones((2, 3, 3, 3)).at[1, 1, 1, 0].set(bad)
+    with pytest.raises(eqx.EquinoxRuntimeError, match="frames: expected finite, non-negative"):
+        op.run(P, frames, 0.03)
+
+
+def test_bad_dt_is_named():
+    frames = jnp.ones((3, 2, 2, 3))
+    with pytest.raises(ValueError, match=r"dt: expected a scalar or shape \(3,\)"):
+        op.run(P, frames, jnp.ones(4))
+    with pytest.raises(eqx.EquinoxRuntimeError, match="dt: expected positive"):
+        op.run(P, frames, jnp.array([0.1, 0.0, 0.1]))
+
+
+def test_unknown_goal_is_named():
+    with pytest.raises(ValueError, match="goal: expected one of"):
+        op.Params(goal="median")
