@@ -142,84 +142,6 @@ def build_parser():
     return parser
 
 
-# -- sources ------------------------------------------------------------------
-
-
-class Source:
-    """Frames to render, produced chunk by chunk."""
-
-    def __init__(self, times, dt, render, gaze, goal, adaptation, name, pixels_per_degree):
-        self.times, self.dt, self.render, self.gaze = times, dt, render, gaze
-        self.goal, self.adaptation, self.name = goal, adaptation, name
-        self.pixels_per_degree = pixels_per_degree
-
-
-def scene_source(args):
-    from jaxadapt.scenes import SCENES
-
-    kwargs = {}
-    if args.size is not None:
-        kwargs["width"], kwargs["height"] = args.size
-    if args.duration is not None:
-        kwargs["duration"] = args.duration
-    scene = SCENES[args.scene](**kwargs)
-
-    def render(idx):
-        return np.asarray(scene.render(scene.times[idx])) * args.multiplier
-
-    return Source(
-        scene.times,
-        scene.dt,
-        render,
-        lambda idx: scene.gaze(scene.times[idx]),
-        scene.goal,
-        scene.adaptation,
-        scene.name,
-        scene.pixels_per_degree,
-    )
-
-
-def file_source(args):
-    from jaxadapt.io import read_hdr
-
-    paths = [Path(p) for p in args.files]
-    first = read_hdr(paths[0])
-    for p in paths[1:]:
-        if not p.is_file():
-            raise FileNotFoundError(f"{p}: no such file")
-
-    def render(idx):
-        frames = []
-        for i in idx:
-            frame = first if i == 0 else read_hdr(paths[i])
-            if frame.shape != first.shape:
-                raise UsageError(
-                    f"{paths[i]}: expected {first.shape[1]}x{first.shape[0]} like {paths[0]}, "
-                    f"got {frame.shape[1]}x{frame.shape[0]}"
-                )
-            bad = ~(np.isfinite(frame) & (frame >= 0))
-            if bad.any():
-                raise UsageError(
-                    f"{paths[i]}: expected finite, non-negative values, got {int(bad.sum())} "
-                    "negative, NaN or infinite values"
-                )
-            frames.append(frame * np.float32(args.multiplier))
-        return np.stack(frames)
-
-    T = len(paths)
-    centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
-    return Source(
-        np.arange(T) / args.fps,
-        np.full(T, 1.0 / args.fps),
-        render,
-        lambda idx: np.tile(centre, (len(idx), 1)),
-        "log_average",
-        None,
-        "files",
-        30.0,
-    )
-
-
 # -- outputs ------------------------------------------------------------------
 
 DIAGNOSTIC_COLUMNS = (
@@ -244,73 +166,33 @@ def write_diagnostics(path, diag):
             writer.writerow([f"{diag[c][i]:.6g}" for c in DIAGNOSTIC_COLUMNS])
 
 
-def plot_adaptation(path, diag, title):
-    """Adaptation state over time and the scene-to-display curve at a few times."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from jaxadapt.operators.pattanaik2000 import CURVE_LOG10_LUMINANCE
-
-    t = diag["t"]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    ax = axes[0]
-    for name, style in (("G_cone", "C1:"), ("A_cone", "C1-"), ("G_rod", "C0:"), ("A_rod", "C0-")):
-        ax.semilogy(t, diag[name], style, label=name)
-    ax.set(xlabel="time (s)", ylabel="cd/m$^2$", title="goal G and neural adaptation A")
-    ax.legend()
-    ax = axes[1]
-    ax.semilogy(t, diag["B_cone"], "C1", label="B_cone")
-    ax.semilogy(t, diag["B_rod"], "C0", label="B_rod")
-    ax.set(xlabel="time (s)", ylabel="unbleached fraction", title="pigment B")
-    ax.legend()
-    ax = axes[2]
-    picks = np.unique(np.linspace(0, len(t) - 1, 8).round().astype(int))
-    colors = plt.cm.viridis(np.linspace(0, 1, len(picks)))
-    for c, i in zip(colors, picks, strict=False):
-        ax.plot(
-            np.asarray(CURVE_LOG10_LUMINANCE), diag["curve"][i], color=c, label=f"t={t[i]:.2f} s"
-        )
-    ax.set(
-        xlabel="scene luminance (log$_{10}$ cd/m$^2$)",
-        ylabel="display value (linear)",
-        title="scene-to-display curve",
-    )
-    ax.legend(fontsize=7)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def contact_sheet(frames, columns=4):
-    """Tile uint8 frames ``(K, H, W, 3)`` into one image, with white gutters."""
-    K, H, W, _ = frames.shape
-    rows = -(-K // columns)
-    sheet = np.full((rows * (H + 4) + 4, columns * (W + 4) + 4, 3), 255, np.uint8)
-    for k in range(K):
-        r, c = divmod(k, columns)
-        sheet[4 + r * (H + 4) : 4 + r * (H + 4) + H, 4 + c * (W + 4) : 4 + c * (W + 4) + W] = (
-            frames[k]
-        )
-    return sheet
-
-
 # -- the render command -------------------------------------------------------
 
 
+def _source(args):
+    from jaxadapt import pipeline
+    from jaxadapt.scenes import SCENES
+
+    if args.files:
+        return pipeline.from_files(args.files, args.fps, args.multiplier)
+    kwargs = {}
+    if args.size is not None:
+        kwargs["width"], kwargs["height"] = args.size
+    if args.duration is not None:
+        kwargs["duration"] = args.duration
+    return pipeline.from_scene(SCENES[args.scene](**kwargs), args.multiplier)
+
+
 def render(args, console):
-    import jax.numpy as jnp
     from rich.progress import Progress
 
-    from jaxadapt import display, io
+    from jaxadapt import display, figures, io, pipeline
     from jaxadapt.operators import pattanaik2000 as op
 
     if args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
     formats = args.formats or ["png", "mp4"]
-    source = file_source(args) if args.files else scene_source(args)
+    source = _source(args)
     goal = args.adaptation_goal or source.goal
     params = op.Params(
         goal=goal, pixels_per_degree=args.pixels_per_degree or source.pixels_per_degree
@@ -329,7 +211,7 @@ def render(args, console):
     contact_idx = set(range(min(4, T))) | set(
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )
-    contact, diag_chunks = [], []
+    contact, tables = [], []
     try:
         with contextlib.ExitStack() as stack:
             send_video = (
@@ -339,27 +221,7 @@ def render(args, console):
             )
             progress = stack.enter_context(Progress(console=console, transient=True))
             task = progress.add_task(f"rendering {source.name}", total=T)
-            state = None
-            for start in range(0, T, args.chunk):
-                idx = np.arange(start, min(start + args.chunk, T))
-                padded = (
-                    np.pad(idx, (0, args.chunk - len(idx)), mode="edge") if T > args.chunk else idx
-                )
-                frames = jnp.asarray(source.render(padded), dtype=jnp.float32)
-                if state is None and source.adaptation is not None:
-                    state = op.init(params, None, adaptation=source.adaptation)
-                out_frames, diag = op.run(
-                    params,
-                    frames,
-                    jnp.asarray(source.dt[padded], jnp.float32),
-                    gaze=jnp.asarray(source.gaze(padded), jnp.float32),
-                    state=state,
-                )
-                n = len(idx)
-                # the state after the last real frame of a padded chunk
-                pairs = zip(diag.state, diag.final_state, strict=True)
-                state = op.State(*(s[n] if n < len(padded) else f for s, f in pairs))
-                linear = np.asarray(out_frames[:n])
+            for idx, linear, table in pipeline.chunks(op, params, source, args.chunk):
                 coded = display.to_uint8(encode(linear))
                 for k, i in enumerate(idx):
                     if "png" in formats:
@@ -371,13 +233,12 @@ def render(args, console):
                     if i in contact_idx:
                         contact.append(coded[k])
                 send_video(coded)
-                diag_chunks.append(_diag_table(diag, n))
-                progress.advance(task, n)
-        table = {k: np.concatenate([d[k] for d in diag_chunks]) for k in diag_chunks[0]}
-        table["t"] = source.times
+                tables.append(table)
+                progress.advance(task, len(idx))
+        table = {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
         write_diagnostics(staging / "diagnostics.csv", table)
-        io.write_image(staging / "contact_sheet.png", contact_sheet(np.stack(contact)))
-        plot_adaptation(
+        io.write_image(staging / "contact_sheet.png", figures.contact_sheet(np.stack(contact)))
+        figures.plot_adaptation(
             staging / "adaptation.png", table, f"{source.name}: Pattanaik et al. 2000, goal {goal}"
         )
         written = sorted(p.name for p in staging.iterdir())
@@ -389,23 +250,6 @@ def render(args, console):
         f"wrote {len(written)} files to {out}/ (diagnostics.csv, contact_sheet.png, "
         f"adaptation.png, {T} frames)"
     )
-
-
-def _diag_table(diag, n):
-    s = diag.state
-    cols = {
-        "G_rod": diag.G_rod,
-        "G_cone": diag.G_cone,
-        "A_rod": s.A_rod,
-        "A_cone": s.A_cone,
-        "B_rod": s.B_rod,
-        "B_cone": s.B_cone,
-        "sigma_rod": diag.sigma_rod,
-        "sigma_cone": diag.sigma_cone,
-        "rule": diag.rule,
-        "curve": diag.curve,
-    }
-    return {k: np.asarray(v)[:n] for k, v in cols.items()}
 
 
 def main(argv=None):

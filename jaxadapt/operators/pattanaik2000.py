@@ -33,6 +33,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxadapt.color import photopic_luminance, scotopic_luminance
 from jaxadapt.operators import goal as goals
@@ -40,7 +41,8 @@ from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
     forward_difference_slope,
     naka_rushton,
-    naka_rushton_inverse,
+    naka_rushton_sum_inverse,
+    power,
     response_slope,
     sigma_cone,
     sigma_rod,
@@ -49,10 +51,6 @@ from jaxadapt.physiology.response import (
 #: Scene luminances (log10 cd/m2) at which the scene-to-display curve of the
 #: diagnostics is sampled: 1e-6 to 1e8 cd/m2, ten samples a decade.
 CURVE_LOG10_LUMINANCE = jnp.linspace(-6.0, 8.0, 141)
-
-#: Fixed-point iterations of the display observer's inverse response (see
-#: :func:`display_luminance`).
-_INVERSE_ITERATIONS = 3
 
 
 def _array(x):
@@ -178,6 +176,30 @@ class Diagnostics(NamedTuple):
     final_state: State
 
 
+def diagnostics_table(diag):
+    """Per-frame columns of a :class:`Diagnostics`, as numpy arrays.
+
+    Scalars per frame (``t``, ``G_rod``, ``G_cone``, ``A_rod``, ``A_cone``,
+    ``B_rod``, ``B_cone``, ``sigma_rod``, ``sigma_cone``, ``rule``) and the
+    sampled scene-to-display ``curve`` ``(T, 141)``.
+    """
+    s = diag.state
+    columns = {
+        "t": diag.t,
+        "G_rod": diag.G_rod,
+        "G_cone": diag.G_cone,
+        "A_rod": s.A_rod,
+        "A_cone": s.A_cone,
+        "B_rod": s.B_rod,
+        "B_cone": s.B_cone,
+        "sigma_rod": diag.sigma_rod,
+        "sigma_cone": diag.sigma_cone,
+        "rule": diag.rule,
+        "curve": diag.curve,
+    }
+    return {name: np.asarray(column) for name, column in columns.items()}
+
+
 # -- the observers ------------------------------------------------------------
 
 
@@ -234,24 +256,15 @@ def display_luminance(params, R):
     """Luminance (cd/m2) of a neutral display pixel that evokes response ``R``.
 
     The inverse of the display observer's ``R_lum(L) = R_rod(L) + R_cone(L)``
-    (Eq 2 with the constants of §4.3). ``R`` is first clipped to
-    ``[0, REF_wht]``: the display cannot show more than its white. Since
-    ``B_rod = 0.0016`` the rods add little, and the fixed-point iteration
-    ``L <- R_cone^-1(R - R_rod(L))`` from ``R_cone^-1(R)`` contracts by a
-    factor below 0.01 per step; three steps reach float32 precision (a test
-    checks it against bisection in float64).
+    (Eq 2 with the constants of §4.3), solved exactly
+    (:func:`~jaxadapt.physiology.response.naka_rushton_sum_inverse`). ``R``
+    is first clipped to ``[0, REF_wht]``: the display cannot show more than
+    its white.
     """
     sigma_r, sigma_c, B_rod, B_cone = _display_observer(params)
     white, _ = display_references(params)
     R = jnp.clip(R, 0.0, white)
-
-    def refine(_, L):
-        return naka_rushton_inverse(
-            R - naka_rushton(L, sigma_r, B_rod, params.n), sigma_c, B_cone, params.n
-        )
-
-    L0 = naka_rushton_inverse(R, sigma_c, B_cone, params.n)
-    return jax.lax.fori_loop(0, _INVERSE_ITERATIONS, refine, L0)
+    return naka_rushton_sum_inverse(R, sigma_r, B_rod, sigma_c, B_cone, params.n)
 
 
 def inverse_appearance(params, ref_white, ref_black):
@@ -336,7 +349,7 @@ def tone_map(params, obs, rgb):
     S_color = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n)
     positive = L_cone > 0
     ratio = jnp.where(positive[..., None], rgb / jnp.where(positive, L_cone, 1.0)[..., None], 1.0)
-    colour = ratio ** (S_color / display_slope(params))[..., None]
+    colour = power(ratio, (S_color / display_slope(params))[..., None])
     white_d = params.white_factor * params.display_adaptation
     return jnp.clip(colour * (L_d / white_d)[..., None], 0.0, 1.0)
 

@@ -1,0 +1,120 @@
+"""Frames per second of the Pattanaik 2000 operator, against pfstmo_pattanaik00.
+
+Renders ``--frames`` frames of the built-in tunnel drive around the tunnel
+mouth, then times:
+
+* ``jaxadapt``: one jitted :func:`jaxadapt.operators.pattanaik2000.run` over
+  all frames, resident on the device (compile excluded, median of repeats);
+* ``pfstmo``: ``pfstmo_pattanaik00 -t`` on the same frames as a pfs stream
+  read from a file, minus the time of ``cat`` on the same stream (its core
+  time; Debian package ``pfstmo``).
+
+Usage::
+
+    python benchmarks/bench_pattanaik2000.py [--size 1920x1080] [--frames 60]
+
+Writes ``benchmarks/results/pattanaik2000_<label>.json``.
+"""
+
+import argparse
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from common import machine, median_seconds, write_result
+
+from jaxadapt import io, scenes
+from jaxadapt.operators import pattanaik2000 as op
+
+FPS = 30.0
+
+
+def tunnel_frames(width, height, count, start=3.0, chunk=8):
+    """``count`` float32 frames of the tunnel drive from ``start`` s, as numpy."""
+    scene = scenes.tunnel_drive(width, height, duration=start + count / FPS, fps=FPS)
+    times = scene.times[int(round(start * FPS)) :][:count]
+    return np.concatenate(
+        [np.asarray(scene.render(times[i : i + chunk])) for i in range(0, count, chunk)]
+    )
+
+
+def time_jaxadapt(frames, repeats):
+    params = op.Params()
+    device_frames = jax.device_put(jnp.asarray(frames))
+    dt = jnp.float32(1 / FPS)
+
+    def go():
+        jax.block_until_ready(op.run(params, device_frames, dt))
+
+    return median_seconds(go, repeats=repeats)
+
+
+def time_pfstmo(frames, repeats):
+    """Core seconds of ``pfstmo_pattanaik00 -t`` on the frames, or None if absent."""
+    if shutil.which("pfstmo_pattanaik00") is None or shutil.which("pfsin") is None:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for k, frame in enumerate(frames):
+            io.write_image(tmp / f"f{k:04d}.pfm", frame)
+        stream = tmp / "frames.pfs"
+        with open(stream, "wb") as f:
+            pattern = str(tmp / "f%04d.pfm")
+            subprocess.run(
+                ["pfsin", pattern, "--frames", f"0:{len(frames) - 1}"], stdout=f, check=True
+            )
+
+        def pipe(*command):
+            def go():
+                with open(stream, "rb") as f:
+                    subprocess.run(command, stdin=f, stdout=subprocess.DEVNULL, check=True)
+
+            return go
+
+        operator = median_seconds(
+            pipe("pfstmo_pattanaik00", "-t", "--fps", str(FPS)), repeats=repeats
+        )
+        copy = median_seconds(pipe("cat"), repeats=repeats)
+    return operator - copy
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", default="1920x1080")
+    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--label", default=None, help="machine label for the result file")
+    parser.add_argument("--no-pfstmo", action="store_true", help="time jaxadapt only")
+    args = parser.parse_args()
+    width, height = (int(v) for v in args.size.split("x"))
+
+    frames = tunnel_frames(width, height, args.frames)
+    ours = time_jaxadapt(frames, args.repeats)
+    theirs = None if args.no_pfstmo else time_pfstmo(frames, args.repeats)
+    bytes_moved = 2 * frames.nbytes  # read the frames, write the display frames
+    record = {
+        "machine": machine(args.label),
+        "size": [width, height],
+        "frames": args.frames,
+        "repeats": args.repeats,
+        "jaxadapt_seconds": ours,
+        "jaxadapt_fps": args.frames / ours,
+        "jaxadapt_GB_per_s": bytes_moved / ours / 1e9,
+        "pfstmo_core_seconds": theirs,
+        "pfstmo_fps": None if theirs is None else args.frames / theirs,
+        "speedup": None if theirs is None else theirs / ours,
+    }
+    label = record["machine"]["backend"] if args.label is None else args.label
+    path = write_result(f"pattanaik2000_{label}_{width}x{height}", record)
+    for key, value in record.items():
+        if key != "machine":
+            print(f"{key:>20}: {value}")
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,56 @@
+"""Shared helpers of the benchmark scripts: timing and the machine record."""
+
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def median_seconds(fn, repeats=5, warmup=1):
+    """Median wall time of ``fn()`` over ``repeats`` calls after ``warmup`` calls.
+
+    ``fn`` must block until its work is done (``jax.block_until_ready``), so
+    that compilation (in the warm-up) and asynchronous dispatch are excluded.
+    """
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def machine(label=None):
+    """What the numbers were measured on: CPU, cores, accelerator, versions."""
+    cpu = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
+    except (OSError, StopIteration):
+        pass
+    device = jax.devices()[0]
+    return {
+        "label": label or platform.node(),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "backend": jax.default_backend(),
+        "device": getattr(device, "device_kind", str(device)),
+        "jax": jax.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def write_result(name, record):
+    """Write ``record`` to ``benchmarks/results/<name>.json`` and return the path."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    path.write_text(json.dumps(record, indent=2) + "\n")
+    return path

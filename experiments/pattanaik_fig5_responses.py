@@ -1,0 +1,64 @@
+"""Fig. 5 of Pattanaik et al. (2000): rod and cone responses at adaptation levels a decade apart.
+
+For each adaptation luminance A (statically adapted: sigma from Eqs 4-5, B
+from Eq 6) the response R = B L^n / (L^n + sigma^n) of Eq 2 is drawn against
+log10 L, with the response to A itself (circle) and to reference white 5 A
+(square) marked. Writes ``fig5_responses.png`` and ``fig5_responses.csv``.
+"""
+
+import csv
+
+import jax.numpy as jnp
+import matplotlib
+import numpy as np
+from common import setup
+from matplotlib.figure import Figure
+
+from jaxadapt.physiology.response import (
+    bleach_cone,
+    bleach_rod,
+    naka_rushton,
+    sigma_cone,
+    sigma_rod,
+)
+
+RECEPTORS = {
+    "rods": (sigma_rod, bleach_rod, np.arange(-6, 3)),
+    "cones": (sigma_cone, bleach_cone, np.arange(-2, 9)),
+}
+
+
+def main():
+    args, out = setup("pattanaik_fig5", __doc__.splitlines()[0])
+    log_L = np.linspace(-8, 10, 91 if args.smoke else 721)
+    fig = Figure(figsize=(12, 4.5))
+    rows = []
+    for ax, (name, (sigma_of, bleach_of, decades)) in zip(
+        fig.subplots(1, 2), RECEPTORS.items(), strict=True
+    ):
+        colours = matplotlib.colormaps["viridis"](np.linspace(0, 0.95, len(decades)))
+        for d, colour in zip(decades, colours, strict=True):
+            A = 10.0 ** float(d)
+            sigma, B = sigma_of(jnp.asarray(A)), bleach_of(jnp.asarray(A))
+            R = np.asarray(naka_rushton(10.0 ** jnp.asarray(log_L), sigma, B))
+            ax.plot(log_L, R, lw=1.2, color=colour, label=f"A = 1e{d}")
+            for L, marker in ((A, "o"), (5 * A, "s")):
+                ax.plot(np.log10(L), float(naka_rushton(L, sigma, B)), marker, color=colour)
+            rows.append((name, A, float(sigma), float(B), float(naka_rushton(5 * A, sigma, B))))
+        ax.set(xlabel="log$_{10}$ luminance (cd/m$^2$)", ylabel="response R", title=name)
+        ax.legend(fontsize=7, ncol=2)
+    fig.suptitle(
+        "Pattanaik et al. 2000, Fig. 5: responses at adaptation levels a decade apart "
+        "(o: R(A), s: R(5A), reference white)"
+    )
+    fig.tight_layout()
+    fig.savefig(out / "fig5_responses.png", dpi=110)
+    with open(out / "fig5_responses.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["receptor", "A_cd_m2", "sigma_cd_m2", "B", "R_white"])
+        writer.writerows(rows)
+    print(f"wrote {out}/fig5_responses.png")
+
+
+if __name__ == "__main__":
+    main()

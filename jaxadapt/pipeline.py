@@ -1,0 +1,170 @@
+"""Sequences of any length through an operator, a chunk of frames at a time.
+
+A :class:`Source` produces calibrated frames (cd/m2) on demand, from a
+built-in scene or from HDR files, so that a long sequence is never held in
+memory whole. :func:`chunks` runs an operator over it: each chunk is one
+call of the operator's ``run``, started from the state the previous chunk
+ended in, so the result equals one call over the whole sequence.
+"""
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxadapt.io import read_hdr
+
+#: Pixels per degree assumed for files, whose viewing geometry is unknown:
+#: a 1920-pixel-wide frame seen across 64 degrees.
+FILE_PIXELS_PER_DEGREE = 30.0
+
+
+class Source(NamedTuple):
+    """Frames to render, produced chunk by chunk.
+
+    Attributes
+    ----------
+    name : str
+    times, dt : numpy array, (T,)
+        Frame times and durations, s.
+    frames : callable
+        ``frames(idx) -> (K, H, W, 3)`` float32 numpy frames, cd/m2.
+    gaze : callable
+        ``gaze(idx) -> (K, 2)`` gaze points ``(x, y)``, pixels.
+    goal : str
+        Adaptation goal the source suggests.
+    adaptation : float or None
+        Luminance (cd/m2) the viewer is adapted to before the first frame;
+        None to adapt to the first frame.
+    pixels_per_degree : float
+        Resolution of the frames at the viewer's eye.
+    """
+
+    name: str
+    times: np.ndarray
+    dt: np.ndarray
+    frames: Callable
+    gaze: Callable
+    goal: str
+    adaptation: float | None
+    pixels_per_degree: float
+
+
+def from_scene(scene, multiplier=1.0):
+    """A :class:`Source` over a :class:`jaxadapt.scenes.Scene`, scaled by ``multiplier``."""
+
+    def frames(idx):
+        return np.asarray(scene.render(scene.times[idx]), np.float32) * np.float32(multiplier)
+
+    def gaze(idx):
+        return np.asarray(scene.gaze(scene.times[idx]))
+
+    return Source(
+        scene.name,
+        scene.times,
+        scene.dt,
+        frames,
+        gaze,
+        scene.goal,
+        scene.adaptation,
+        scene.pixels_per_degree,
+    )
+
+
+def from_files(paths, fps, multiplier=1.0):
+    """A :class:`Source` over HDR files, one frame each, in the order given.
+
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        EXR, Radiance HDR, PFM or float TIFF files (:func:`jaxadapt.io.read_hdr`).
+    fps : float
+        Frame rate, frames per second.
+    multiplier : float
+        Factor that calibrates the values to cd/m2.
+
+    Raises
+    ------
+    FileNotFoundError
+        A file does not exist (checked for all files up front).
+    ValueError
+        The first file cannot be read; later, when its chunk is read, a
+        frame whose size differs from the first or which holds negative,
+        NaN or infinite values.
+    """
+    paths = [Path(p) for p in paths]
+    first = read_hdr(paths[0])
+    for p in paths[1:]:
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: no such file")
+
+    def read(i):
+        frame = first if i == 0 else read_hdr(paths[i])
+        if frame.shape != first.shape:
+            raise ValueError(
+                f"{paths[i]}: expected {first.shape[1]}x{first.shape[0]} like {paths[0]}, "
+                f"got {frame.shape[1]}x{frame.shape[0]}"
+            )
+        bad = ~(np.isfinite(frame) & (frame >= 0))
+        if bad.any():
+            raise ValueError(
+                f"{paths[i]}: expected finite, non-negative values, got {int(bad.sum())} "
+                "negative, NaN or infinite values"
+            )
+        return frame * np.float32(multiplier)
+
+    centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
+    T = len(paths)
+    return Source(
+        "files",
+        np.arange(T) / fps,
+        np.full(T, 1.0 / fps),
+        lambda idx: np.stack([read(i) for i in idx]),
+        lambda idx: np.tile(centre, (len(idx), 1)),
+        "log_average",
+        None,
+        FILE_PIXELS_PER_DEGREE,
+    )
+
+
+def chunks(op, params, source, size=32):
+    """Run operator module ``op`` over ``source``, ``size`` frames per call.
+
+    Parameters
+    ----------
+    op : module
+        An operator with the contract of :mod:`jaxadapt.operators`
+        (``init``, ``run`` and ``diagnostics_table``).
+    params : op.Params
+    source : Source
+    size : int
+        Frames per call. Every chunk but the last has this length, so the
+        operator compiles at most twice.
+
+    Yields
+    ------
+    (numpy array, numpy array, dict)
+        Frame indices ``(n,)``, display frames ``(n, H, W, 3)`` (linear,
+        in [0, 1]) and the chunk's diagnostics as columns of length ``n``.
+    """
+    if size < 1:
+        raise ValueError(f"size: expected a positive number of frames, got {size}")
+    T = len(source.times)
+    state = (
+        None if source.adaptation is None else op.init(params, None, adaptation=source.adaptation)
+    )
+    for start in range(0, T, size):
+        idx = np.arange(start, min(start + size, T))
+        out, diag = op.run(
+            params,
+            jnp.asarray(source.frames(idx)),
+            jnp.asarray(source.dt[idx], jnp.float32),
+            gaze=jnp.asarray(source.gaze(idx), jnp.float32),
+            state=state,
+        )
+        state = diag.final_state
+        table = op.diagnostics_table(diag)
+        table["t"] = source.times[idx]
+        yield idx, np.asarray(out), table
