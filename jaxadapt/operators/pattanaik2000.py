@@ -11,8 +11,9 @@ scene evokes in the scene viewer (Fig. 1 and Fig. 4 of the paper)::
 
 The adaptation state is four scalars (``A_rod``, ``A_cone``, ``B_rod``,
 ``B_cone``). :func:`run` therefore finds every frame's goals (reductions),
-scans the scalar state over time, and then maps all pixels of all frames in
-one vectorised pass; :func:`step` does the same one frame at a time.
+scans the scalar state over time, and only then maps the pixels, each frame
+in one vectorised pass that no longer depends on the others; :func:`step`
+does the same one frame at a time.
 
 Timing: frame ``k``, shown at ``t_k``, is seen with the state reached at
 ``t_k``; its goal is then held for its duration ``dt_k`` to give the state
@@ -551,7 +552,9 @@ def _run(params, frames, dt, gaze, state):
 
     final_state, states = jax.lax.scan(scan_step, state, (G_rod, G_cone, dt))
     obs = jax.vmap(lambda s: observer(params, s))(states)
-    out = jax.vmap(lambda o, f: tone_map(params, o, f))(obs, frames)
+    # one frame at a time: a frame's intermediates stay small, where a vmap
+    # over all frames makes XLA write each of them for the whole sequence
+    out = jax.lax.map(lambda of: tone_map(params, *of), (obs, frames))
     diagnostics = Diagnostics(
         t=jnp.cumsum(dt) - dt,
         G_rod=G_rod,
