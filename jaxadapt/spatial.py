@@ -74,21 +74,16 @@ def separable_filter(image, taps):
 
     The edges are extended by mirror reflection about the edge pixels
     (``jnp.pad`` mode ``"reflect"``, repeated for kernels longer than the
-    image), so that a constant image stays constant.
+    image), so that a constant image stays constant. Each pass is a weighted
+    sum of shifted slices, which XLA fuses into one loop: on the CPU it is
+    tens of times faster than a convolution op for these one-channel images.
     """
-    taps = jnp.asarray(taps, dtype=image.dtype)
+    taps = np.asarray(taps)
     r = (taps.shape[0] - 1) // 2
-    lead, (H, W) = image.shape[:-2], image.shape[-2:]
-    flat = image.reshape((-1, 1, H, W))
-    padded = jnp.pad(flat, ((0, 0), (0, 0), (r, r), (r, r)), mode="reflect")
-    dims = ("NCHW", "OIHW", "NCHW")
-    rows = jax.lax.conv_general_dilated(
-        padded, taps[None, None, :, None], (1, 1), "VALID", dimension_numbers=dims
-    )
-    both = jax.lax.conv_general_dilated(
-        rows, taps[None, None, None, :], (1, 1), "VALID", dimension_numbers=dims
-    )
-    return both.reshape(lead + (H, W))
+    H, W = image.shape[-2:]
+    padded = _reflect_pad(image, r)
+    rows = sum(w * padded[..., i : i + H, :] for i, w in enumerate(taps))
+    return sum(w * rows[..., :, i : i + W] for i, w in enumerate(taps)).astype(image.dtype)
 
 
 def gaussian_blur(image, sigma, truncate=4.0):
@@ -109,8 +104,352 @@ def gaussian_blur(image, sigma, truncate=4.0):
 
     Examples
     --------
-    >>> img = jnp.zeros((9, 9)).at[4, 4].set(1.0)
+    >>> img = jnp.zeros((11, 11)).at[5, 5].set(1.0)
     >>> round(float(gaussian_blur(img, 1.0).sum()), 6)
     1.0
     """
     return separable_filter(image, gaussian_kernel(sigma, truncate))
+
+
+# -- checks ---------------------------------------------------------------------
+
+
+def check_value(name, value, ok, expected):
+    """Raise ``ValueError`` naming ``name`` unless ``ok(value)`` holds everywhere.
+
+    Values that are traced (inside ``jit`` or ``vmap``) are not checked: a
+    traced value is not known before tracing.
+
+    Parameters
+    ----------
+    name : str
+        Argument name, for the message.
+    value : number or array
+    ok : callable
+        Predicate on a NumPy array, elementwise.
+    expected : str
+        What was expected, for the message.
+    """
+    if isinstance(value, jax.core.Tracer):
+        return
+    if not np.all(ok(np.asarray(value))):
+        raise ValueError(f"{name}: expected {expected}, got {value!r}")
+
+
+def _check_radius(radius, name="radius"):
+    """A static, non-negative whole number of pixels."""
+    if isinstance(radius, bool) or not isinstance(radius, (int, np.integer)) or radius < 0:
+        raise ValueError(f"{name}: expected a non-negative whole number of pixels, got {radius!r}")
+    return int(radius)
+
+
+def _check_image(image, name="image"):
+    if image.ndim < 2:
+        raise ValueError(f"{name}: expected an array of shape (..., H, W), got shape {image.shape}")
+
+
+# -- box filters, low-pass stacks and band-pass images --------------------------
+
+
+def _reflect_indices(n, r):
+    """Indices of an axis of length ``n`` mirror-extended by ``r`` on each side.
+
+    The same extension as ``jnp.pad(..., mode="reflect")`` (about the edge
+    samples, repeated with period ``2 (n - 1)`` when ``r >= n``), as one
+    gather instead of a chain of concatenations.
+    """
+    period = max(2 * (n - 1), 1)
+    k = np.abs(np.arange(-r, n + r)) % period
+    return np.where(k >= n, period - k, k)
+
+
+def _reflect_pad(image, r):
+    """Mirror-extend the last two axes by ``r`` pixels, as :func:`separable_filter` does."""
+    H, W = image.shape[-2:]
+    rows = jnp.take(image, _reflect_indices(H, r), axis=-2)
+    return jnp.take(rows, _reflect_indices(W, r), axis=-1)
+
+
+def _window_sums(x, w, axis):
+    """Sums of ``w`` consecutive samples along ``axis``, one per window start (``n - w + 1``).
+
+    The window is split as ``w = a b + c`` with ``a = floor(sqrt(w))``: sums of
+    ``a`` samples, sums of ``b`` of those taken ``a`` apart (a dilated
+    window), plus the ``c`` samples left over. That is ``O(sqrt(w))``
+    additions per sample instead of ``w``, and every partial sum covers
+    samples of the window only, so float32 rounding stays relative to the
+    window's own content. (A running summed-area table would make the error
+    grow with the sum of everything before the window: fatal for the dark
+    side of an HDR edge.)
+    """
+    n = x.shape[axis]
+    a = int(np.sqrt(w))
+    b, c = divmod(w, a)
+    count = n - w + 1
+    zero = jnp.zeros((), x.dtype)
+
+    def sums(y, size, dilation=1):
+        window, dilations = [1] * y.ndim, [1] * y.ndim
+        window[axis], dilations[axis] = size, dilation
+        return jax.lax.reduce_window(
+            y, zero, jax.lax.add, window, (1,) * y.ndim, "VALID", window_dilation=dilations
+        )
+
+    runs = sums(x, b) if a == 1 else sums(sums(x, a), b, a)
+    total = jax.lax.slice_in_dim(runs, 0, count, axis=axis)
+    if c:
+        rest = sums(jax.lax.slice_in_dim(x, a * b, n, axis=axis), c)
+        total = total + jax.lax.slice_in_dim(rest, 0, count, axis=axis)
+    return total
+
+
+def box_filter(image, radius):
+    """Mean over the ``(2 radius + 1)^2`` square around each pixel (box weights of Eq 6.4).
+
+    Parameters
+    ----------
+    image : array, shape (..., H, W)
+        Any quantity per pixel; leading axes are batch axes.
+    radius : int
+        Half-width of the square, pixels (static). ``0`` returns the image.
+        Radii larger than the image are allowed: the image is mirror-extended
+        as often as needed (as in :func:`separable_filter`), so a constant
+        image stays constant and a very large box tends to the mean of the
+        mirrored image.
+
+    Returns
+    -------
+    array, shape (..., H, W)
+
+    Notes
+    -----
+    The chapter's box weight is a disc, ``||p - i|| < s``; we use the square
+    of half-width ``s``, which is separable and costs ``O(sqrt(radius))``
+    additions per pixel whatever the radius (see :func:`disc_window` and
+    :func:`bilateral_filter` for disc weights).
+
+    Examples
+    --------
+    >>> float(box_filter(jnp.arange(9.0).reshape(3, 3), 1)[1, 1])
+    4.0
+    """
+    _check_image(image)
+    r = _check_radius(radius)
+    w = 2 * r + 1
+    padded = _reflect_pad(image, r)
+    sums = _window_sums(_window_sums(padded, w, image.ndim - 2), w, image.ndim - 1)
+    return sums / jnp.asarray(w * w, image.dtype)
+
+
+def iterated_box_filter(image, radius, passes=3):
+    """``passes`` successive :func:`box_filter` s: a smooth, almost Gaussian low-pass.
+
+    The kernel is a box convolved with itself ``passes`` times (a B-spline
+    of degree ``passes - 1``), of support ``2 passes radius + 1`` and
+    variance ``passes r (r + 1) / 3`` pixels^2; three passes approximate a
+    Gaussian of standard deviation ``sqrt(r (r + 1))`` (Wells 1986) to
+    within 6-8 % of its peak, at a cost independent of the radius.
+
+    Parameters
+    ----------
+    image : array, shape (..., H, W)
+    radius : int
+        Half-width of each box, pixels (static).
+    passes : int
+        Number of boxes (static), ``>= 1``.
+
+    Returns
+    -------
+    array, shape (..., H, W)
+
+    Examples
+    --------
+    >>> impulse = jnp.zeros((1, 9)).at[0, 4].set(1.0)
+    >>> [round(float(v) * 9, 6) for v in iterated_box_filter(impulse, 1, passes=2)[0, 2:7]]
+    [1.0, 2.0, 3.0, 2.0, 1.0]
+    """
+    if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 1:
+        raise ValueError(f"passes: expected a whole number >= 1, got {passes!r}")
+    for _ in range(passes):
+        image = box_filter(image, radius)
+    return image
+
+
+def lowpass_stack(image, radii, passes=3):
+    """Low-pass images of ``image`` at several scales, stacked on a new axis ``-3``.
+
+    Level ``i`` is :func:`iterated_box_filter` with radius ``radii[i]``: the
+    average local luminance at that scale (Peli's low-pass images, §6.4.3).
+
+    Parameters
+    ----------
+    image : array, shape (..., H, W)
+    radii : sequence of int
+        Box half-widths, pixels (static), usually increasing.
+    passes : int
+        Boxes per level (static).
+
+    Returns
+    -------
+    array, shape (..., len(radii), H, W)
+    """
+    return jnp.stack([iterated_box_filter(image, r, passes) for r in radii], axis=-3)
+
+
+def dog_bands(stack):
+    """Band-pass (difference-of-low-pass) images of a :func:`lowpass_stack`.
+
+    ``band[i] = stack[i] - stack[i + 1]``, so that ``image = (image -
+    stack[0]) + sum(bands) + stack[-1]``: the image split into the detail
+    finer than the first level, one band per octave, and the coarsest
+    low-pass.
+
+    Parameters
+    ----------
+    stack : array, shape (..., K, H, W)
+
+    Returns
+    -------
+    array, shape (..., K - 1, H, W)
+    """
+    return stack[..., :-1, :, :] - stack[..., 1:, :, :]
+
+
+# -- bilateral filter (Eq 6.5) --------------------------------------------------
+
+#: Intensity weights ``g`` of Eq 6.5 as functions of ``t = (guide_i - guide_p) / sigma_r``:
+#: Gaussian (Durand and Dorsey 2002) and exponential (Pattanaik and Yee 2002).
+RANGE_KERNELS = {
+    "gaussian": lambda t: jnp.exp(-0.5 * t * t),
+    "exponential": lambda t: jnp.exp(-jnp.abs(t)),
+}
+
+
+def gaussian_window(s, truncate=2.0):
+    """Spatial weights ``w = exp(-||p - i||^2 / s^2)`` of Eq 6.4 on a disc.
+
+    The chapter's Gaussian, a standard deviation of ``s / sqrt(2)``,
+    truncated to the disc ``||p - i|| <= R``, ``R = ceil(truncate s / sqrt(2))``.
+
+    Parameters
+    ----------
+    s : float
+        Size parameter of Eq 6.4, pixels (static), ``> 0``.
+    truncate : float
+        Radius of the disc in standard deviations.
+
+    Returns
+    -------
+    numpy array, shape (2 R + 1, 2 R + 1)
+    """
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"scale: expected a positive size in pixels, got {s!r}")
+    R = int(np.ceil(truncate * s / np.sqrt(2.0)))
+    d2 = np.add.outer(np.arange(-R, R + 1) ** 2, np.arange(-R, R + 1) ** 2)
+    return np.where(d2 <= R * R, np.exp(-d2 / s**2), 0.0)
+
+
+def disc_window(s):
+    """Circular box weights: 1 for ``||p - i|| <= s``, 0 elsewhere (Pattanaik and Yee).
+
+    Parameters
+    ----------
+    s : float
+        Radius, pixels (static), ``>= 0``.
+
+    Returns
+    -------
+    numpy array, shape (2 R + 1, 2 R + 1), ``R = floor(s)``
+    """
+    if not (np.isfinite(s) and s >= 0):
+        raise ValueError(f"scale: expected a non-negative radius in pixels, got {s!r}")
+    R = int(np.floor(s))
+    d2 = np.add.outer(np.arange(-R, R + 1) ** 2, np.arange(-R, R + 1) ** 2)
+    return (d2 <= s * s).astype(np.float64)
+
+
+#: Spatial weights ``w`` of Eq 6.5 by name: functions of the size parameter ``s``.
+SPATIAL_WINDOWS = {"gaussian": gaussian_window, "disc": disc_window}
+
+
+def bilateral_filter(
+    image, scale, sigma_r, spatial="gaussian", range_kernel="gaussian", guide=None
+):
+    """Bilateral average of Eq 6.5: ``sum w g I / sum w g`` over a window.
+
+    ``I_p' = sum_i w(p, i) g(G_p, G_i) I_i / sum_i w(p, i) g(G_p, G_i)``, with
+    ``w`` a spatial weight of size ``scale`` and ``g`` a weight on the
+    difference of the guide ``G`` (the image itself by default, or e.g. its
+    log luminance) in units of ``sigma_r``.
+
+    Parameters
+    ----------
+    image : array, shape (..., H, W)
+        Values averaged; leading axes are batch axes.
+    scale : float
+        Size parameter ``s`` of the spatial weight, pixels (static): see
+        :func:`gaussian_window` and :func:`disc_window`.
+    sigma_r : float or array
+        Width of the intensity weight, in units of the guide, ``> 0``.
+    spatial : str
+        ``"gaussian"`` (Durand and Dorsey) or ``"disc"`` (Pattanaik and Yee).
+    range_kernel : str
+        ``"gaussian"`` (Durand and Dorsey) or ``"exponential"`` (Pattanaik
+        and Yee): see :data:`RANGE_KERNELS`.
+    guide : array, shape (..., H, W), optional
+        Quantity whose differences set ``g``; defaults to ``image``.
+
+    Returns
+    -------
+    array, shape (..., H, W)
+
+    Notes
+    -----
+    Exact, windowed and vectorised: one pass over the whole image per window
+    offset (``lax.scan`` over the offsets), so the cost grows with the
+    window's area (about ``pi R^2`` offsets). The edges are mirror-extended
+    as in :func:`box_filter`. With ``spatial="gaussian"`` and
+    ``range_kernel="gaussian"`` it is OpenCV's ``cv2.bilateralFilter`` with
+    ``d = 2 R + 1``, ``sigmaSpace = scale / sqrt(2)``, ``sigmaColor =
+    sigma_r`` and ``BORDER_REFLECT_101``.
+
+    Examples
+    --------
+    >>> step = jnp.concatenate([jnp.zeros((4, 4)), jnp.ones((4, 4))], axis=1)
+    >>> out = bilateral_filter(step, 2.0, 0.1)
+    >>> round(float(out[0, 3]), 6), round(float(out[0, 4]), 6)
+    (0.0, 1.0)
+    """
+    _check_image(image)
+    for name, value, options in (
+        ("spatial", spatial, SPATIAL_WINDOWS),
+        ("range_kernel", range_kernel, RANGE_KERNELS),
+    ):
+        if value not in options:
+            raise ValueError(f"{name}: expected one of {tuple(options)}, got {value!r}")
+    check_value("sigma_r", sigma_r, lambda v: v > 0, "a positive width")
+    sigma_r = jnp.asarray(sigma_r, image.dtype)
+    guide = image if guide is None else guide
+    if guide.shape != image.shape:
+        raise ValueError(f"guide: expected the shape of image {image.shape}, got {guide.shape}")
+    window = SPATIAL_WINDOWS[spatial](scale)
+    g = RANGE_KERNELS[range_kernel]
+    R = window.shape[0] // 2
+    shape = image.shape
+    values = image.reshape((-1,) + shape[-2:])
+    guide = guide.reshape(values.shape).astype(image.dtype)
+    padded_values, padded_guide = _reflect_pad(values, R), _reflect_pad(guide, R)
+    rows, cols = np.nonzero(window)
+    taps = (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(window[rows, cols], image.dtype))
+
+    def accumulate(carry, tap):
+        num, den = carry
+        dy, dx, w = tap
+        start = (0, dy, dx)
+        v = jax.lax.dynamic_slice(padded_values, start, values.shape)
+        weight = w * g((jax.lax.dynamic_slice(padded_guide, start, values.shape) - guide) / sigma_r)
+        return (num + weight * v, den + weight), None
+
+    zeros = jnp.zeros_like(values)
+    (num, den), _ = jax.lax.scan(accumulate, (zeros, zeros), taps)
+    return (num / den).reshape(shape)

@@ -1,0 +1,411 @@
+"""The photoreceptor family of tone curves, and Ward's JND mapping (chapter 6, §6.3).
+
+Each classic global tone curve turns out to be Eq 6.2, the Naka-Rushton
+response ``R / R_max = I^n / (I^n + sigma_b^n)``, with a particular
+semi-saturation ``sigma_b``. For each curve this module gives its published
+("original") form and the chapter's rewritten form, and evaluates the
+rewritten one; ``tests/test_classic.py`` checks that the two agree.
+
+Every curve is an ``equinox.Module`` of parameters with a method
+``curve(I, I_b)`` from luminance ``I`` and background luminance ``I_b`` (both
+cd/m2, shape ``(..., H, W)``) to display luminance relative to display white.
+:func:`tone_map` applies any of them to linear RGB frames ``(..., H, W, 3)``
+with a global background (the log average, by default) or any local one,
+e.g. a :data:`jaxadapt.operators.goal.BACKGROUNDS` estimator.
+:data:`TONE_CURVES` names them.
+
+References
+----------
+Reinhard, Ward, Pattanaik, Debevec (2005), *High Dynamic Range Imaging*,
+chapter 6, §6.3.1-6.3.2 and Eq 6.2-6.3 (``shared/seeds/001_*.txt``).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from jaxadapt.color import photopic_luminance
+from jaxadapt.operators.goal import LUMINANCE_FLOOR, global_background
+from jaxadapt.physiology.response import naka_rushton, power
+from jaxadapt.physiology.threshold import TVI_MODELS
+from jaxadapt.spatial import check_value
+
+
+def _array(x):
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+def _positive(name, value):
+    check_value(name, value, lambda v: v > 0, "a positive value")
+
+
+# -- the curves in their two forms --------------------------------------------
+
+
+def schlick_original(I, I_max, p):
+    """Schlick's rational quantisation: ``F = p I / (p I - I + I_max)`` [original form].
+
+    Parameters
+    ----------
+    I : array
+        Luminance, ``0 <= I <= I_max``.
+    I_max : array
+        Largest luminance of the image.
+    p : array
+        Rational parameter, ``>= 1``.
+
+    Returns
+    -------
+    array
+        Display value in ``[0, 1]``.
+    """
+    return p * I / (p * I - I + I_max)
+
+
+def schlick_sigma(I, I_max, p):
+    """Semi-saturation of Schlick's curve as Eq 6.2 (``n = 1``): ``sigma_b = (I_max - I) / p``.
+
+    ``F = I / (I + (I_max - I) / p)`` [rewritten form]: every pixel is its
+    own background.
+    """
+    return (I_max - I) / p
+
+
+def tumblin_original(I, I_b, k, n, D):
+    """Tumblin's S-curve: ``F = D ((I/I_b)^n + 1/k) / ((I/I_b)^n + k)`` [original form].
+
+    Parameters
+    ----------
+    I : array
+        Luminance.
+    I_b : array
+        Background (adaptation) luminance, in the unit of ``I``.
+    k : array
+        Shape parameter, ``> 1``: the background maps to ``D / k``, black to
+        ``D / k^2``.
+    n : array
+        Exponent, ``> 0``.
+    D : array
+        Display white.
+
+    Returns
+    -------
+    array
+        Display value in ``[D / k^2, D)``.
+    """
+    x = power(I / I_b, n)
+    return D * (x + 1.0 / k) / (x + k)
+
+
+def tumblin_sigma(I_b, k, n):
+    """Semi-saturation of the first part of Tumblin's rewritten curve: ``sigma_b = k^(1/n) I_b``."""
+    return power(k, 1.0 / n) * I_b
+
+
+def tumblin_rewritten(I, I_b, k, n, D):
+    """Tumblin's S-curve as Eq 6.2 plus a second part [rewritten form].
+
+    ``F = D [I^n / (I^n + k I_b^n) + I_b^n / (k (I^n + k I_b^n))]``: the first
+    part is Eq 6.2 with ``sigma_b = k^(1/n) I_b`` (:func:`tumblin_sigma`);
+    the second is ``(1 - R) / k^2``, so ``F = D (1/k^2 + (1 - 1/k^2) R)``:
+    Eq 6.2 raised to the display's black level ``D / k^2``.
+    """
+    R = naka_rushton(I, tumblin_sigma(I_b, k, n), 1.0, n)
+    return D * (R + (1.0 - R) / k**2)
+
+
+def reinhard_devlin_sigma(I_b, f, m):
+    """Reinhard and Devlin's semi-saturation ``sigma_b = (f I_b)^m`` (Eq 6.2 with ``n = 1``)."""
+    return power(f * I_b, m)
+
+
+def photographic_original(I, I_b, a):
+    """Reinhard et al.'s photographic curve: ``F = (a I/I_b) / (1 + a I/I_b)`` [original form].
+
+    Parameters
+    ----------
+    I : array
+        Luminance.
+    I_b : array
+        Background luminance (the log average for the global operator).
+    a : array
+        Key, ``> 0``: the display value of the background is ``a / (1 + a)``.
+    """
+    x = a * I / I_b
+    return x / (1.0 + x)
+
+
+def photographic_sigma(I_b, a):
+    """Semi-saturation of the photographic curve: ``F = I / (I + I_b / a)`` [rewritten form]."""
+    return I_b / a
+
+
+def jnd_count(I, I_b, tvi):
+    """Number of just-noticeable differences between ``I`` and its background: ``(I - I_b) / dI_b``.
+
+    Parameters
+    ----------
+    I, I_b : array
+        Luminance and background luminance, cd/m2.
+    tvi : callable
+        Threshold (cd/m2) as a function of background luminance (cd/m2):
+        one of :data:`jaxadapt.physiology.threshold.TVI_MODELS`.
+    """
+    return (I - I_b) / tvi(I_b)
+
+
+def ward_display_luminance(jnds, I_bd, tvi):
+    """Eq 6.3: ``I_display = JNDs dI_b,display + I_b,display``.
+
+    Parameters
+    ----------
+    jnds : array
+        JNDs above the background (:func:`jnd_count`).
+    I_bd : array
+        Display background (adaptation) luminance, cd/m2.
+    tvi : callable
+        TVI model, cd/m2 to cd/m2.
+
+    Returns
+    -------
+    array
+        Display luminance, cd/m2.
+    """
+    return jnds * tvi(I_bd) + I_bd
+
+
+# -- parameters of each curve --------------------------------------------------
+
+
+class Schlick1994(eqx.Module):
+    """Schlick's rational quantisation as Eq 6.2 with ``sigma_b = (I_max - I) / p``.
+
+    Attributes
+    ----------
+    p : float
+        Rational parameter, ``>= 1`` (``1`` is linear scaling by ``I_max``).
+    k : float
+        Weight of the background, in ``[0, 1]``: Schlick's non-uniform
+        quantisation replaces ``p`` by ``p (1 - k + k I_b / sqrt(I_min
+        I_max))``, so that the curve is steeper where the background is
+        bright. ``0`` (the default) is the uniform curve, which does not
+        depend on the background.
+    """
+
+    p: jax.Array = eqx.field(default=100.0, converter=_array)
+    k: jax.Array = eqx.field(default=0.0, converter=_array)
+
+    def __check_init__(self):
+        check_value("Schlick1994.p", self.p, lambda v: v >= 1, "p >= 1")
+        check_value("Schlick1994.k", self.k, lambda v: (v >= 0) & (v <= 1), "k in [0, 1]")
+
+    def curve(self, I, I_b):
+        I_max = jnp.max(I, axis=(-2, -1), keepdims=True)
+        I_min = jnp.min(I, axis=(-2, -1), keepdims=True)
+        p = self.p * (1.0 - self.k + self.k * I_b / jnp.sqrt(I_min * I_max))
+        sigma = schlick_sigma(I, I_max, p)
+        # sigma = 0 at the brightest pixel: Eq 6.2 is then 1.
+        positive = sigma > 0
+        return jnp.where(positive, naka_rushton(I, jnp.where(positive, sigma, 1.0), 1.0, 1.0), 1.0)
+
+
+class Tumblin1999(eqx.Module):
+    """Tumblin's S-curve: ``D (1/k^2 + (1 - 1/k^2) R)``, ``R`` Eq 6.2, ``sigma_b = k^(1/n) I_b``.
+
+    Attributes
+    ----------
+    k : float
+        ``> 1``; ``k^2`` is the display contrast (black at ``D / k^2``) and
+        the background maps to ``D / k``. Default 10 (100:1).
+    n : float
+        Exponent, ``> 0``.
+    D : float
+        Display white, relative to the display's maximum, ``> 0``.
+    """
+
+    k: jax.Array = eqx.field(default=10.0, converter=_array)
+    n: jax.Array = eqx.field(default=1.0, converter=_array)
+    D: jax.Array = eqx.field(default=1.0, converter=_array)
+
+    def __check_init__(self):
+        check_value("Tumblin1999.k", self.k, lambda v: v > 1, "k > 1")
+        _positive("Tumblin1999.n", self.n)
+        _positive("Tumblin1999.D", self.D)
+
+    def curve(self, I, I_b):
+        return tumblin_rewritten(I, I_b, self.k, self.n, self.D)
+
+
+class ReinhardDevlin(eqx.Module):
+    """Reinhard and Devlin's curve: Eq 6.2 with ``n = 1`` and ``sigma_b = (f I_b)^m``.
+
+    Attributes
+    ----------
+    f : float
+        Intensity, ``> 0`` (colour-hdri's and the paper's ``f'`` is
+        ``-ln f``).
+    m : float
+        Contrast, ``> 0``.
+    """
+
+    f: jax.Array = eqx.field(default=1.0, converter=_array)
+    m: jax.Array = eqx.field(default=0.6, converter=_array)
+
+    def __check_init__(self):
+        _positive("ReinhardDevlin.f", self.f)
+        _positive("ReinhardDevlin.m", self.m)
+
+    def curve(self, I, I_b):
+        return naka_rushton(I, reinhard_devlin_sigma(I_b, self.f, self.m), 1.0, 1.0)
+
+
+class Photographic(eqx.Module):
+    """Reinhard et al.'s photographic curve: Eq 6.2 with ``n = 1``, ``sigma_b = I_b / a``.
+
+    With the global background (the log average) it is the global
+    photographic operator; with
+    :func:`jaxadapt.operators.goal.adaptive_background` it is the chapter's
+    local version with a variable-size neighbourhood. (Reinhard et al.'s own
+    local operator, ``L / (1 + V_1)``, keeps the log average in the scaling
+    ``L = a I / I_w`` and puts the local average only in the denominator:
+    a different curve, not the chapter's Eq 6.2 form, and not provided.)
+
+    Attributes
+    ----------
+    a : float
+        Key, ``> 0`` (0.18, middle grey).
+    """
+
+    a: jax.Array = eqx.field(default=0.18, converter=_array)
+
+    def __check_init__(self):
+        _positive("Photographic.a", self.a)
+
+    def curve(self, I, I_b):
+        return naka_rushton(I, photographic_sigma(I_b, self.a), 1.0, 1.0)
+
+
+class WardJND(eqx.Module):
+    """Ward's JND mapping (Eq 6.3) from a TVI model.
+
+    ``I_d = I_bd + (I - I_b) dI(I_bd) / dI(I_b)``: the pixel's JNDs above
+    its background, counted with the scene's threshold ``dI(I_b)``, are
+    reproduced above the display background ``I_bd`` in display JNDs. The
+    result is relative to display white ``L_dmax``. With a global
+    background it is Ward's (1994) contrast-based scale factor (plus the
+    offset of Eq 6.3); with a local one, the compression that the
+    log-linear TVI provides (§6.3.2).
+
+    Attributes
+    ----------
+    L_da : float
+        Display background (adaptation) luminance, cd/m2, ``> 0`` (Ward:
+        half the display's maximum).
+    L_dmax : float
+        Display white, cd/m2, ``> 0``.
+    tvi : str
+        TVI model (static): ``"blackwell"`` (Ward 1994) or
+        ``"rushton-macleod"`` (§6.2.2, through the natural pupil); see
+        :data:`jaxadapt.physiology.threshold.TVI_MODELS`.
+    """
+
+    L_da: jax.Array = eqx.field(default=50.0, converter=_array)
+    L_dmax: jax.Array = eqx.field(default=100.0, converter=_array)
+    tvi: str = eqx.field(default="blackwell", static=True)
+
+    def __check_init__(self):
+        _positive("WardJND.L_da", self.L_da)
+        _positive("WardJND.L_dmax", self.L_dmax)
+        if self.tvi not in TVI_MODELS:
+            raise ValueError(f"WardJND.tvi: expected one of {tuple(TVI_MODELS)}, got {self.tvi!r}")
+
+    def curve(self, I, I_b):
+        tvi = TVI_MODELS[self.tvi]
+        return ward_display_luminance(jnd_count(I, I_b, tvi), self.L_da, tvi) / self.L_dmax
+
+
+#: The tone curves by name: their parameter classes.
+TONE_CURVES = {
+    "schlick1994": Schlick1994,
+    "tumblin1999": Tumblin1999,
+    "reinhard-devlin": ReinhardDevlin,
+    "photographic": Photographic,
+    "ward-jnd": WardJND,
+}
+
+
+# -- applying a curve to frames --------------------------------------------------
+
+
+def _as_dtype(params, dtype):
+    """Cast the floating-point arrays of ``params`` to the frame's dtype."""
+
+    def cast(x):
+        return x.astype(dtype) if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating) else x
+
+    return jax.tree.map(cast, params)
+
+
+def _background(L, background):
+    """The background luminance of ``L`` that ``tone_map``'s argument asks for."""
+    if background is None:
+        return global_background(L)
+    I_b = background(L) if callable(background) else jnp.asarray(background, L.dtype)
+    try:
+        fits = jnp.broadcast_shapes(I_b.shape, L.shape) == L.shape
+    except ValueError:
+        fits = False
+    if not fits:
+        raise ValueError(
+            f"background: expected a luminance broadcastable to {L.shape} (cd/m2), "
+            f"got shape {I_b.shape}"
+        )
+    return I_b
+
+
+@eqx.filter_jit
+def tone_map(params, frame, background=None):
+    """Tone-map linear RGB frames with one of the curves.
+
+    The curve maps the luminance ``Y`` of each pixel to a display value
+    ``F(Y, I_b)``; the pixel's RGB is scaled by ``F / Y`` (its chromaticity
+    is kept) and clipped to ``[0, 1]``.
+
+    Parameters
+    ----------
+    params : Schlick1994, Tumblin1999, ReinhardDevlin, Photographic or WardJND
+        The curve and its parameters (:data:`TONE_CURVES`).
+    frame : array, shape (..., H, W, 3)
+        Linear BT.709 RGB, cd/m2, finite; leading axes are frames or batches.
+        Luminances below :data:`~jaxadapt.operators.goal.LUMINANCE_FLOOR`
+        (zero, negative) count as the floor.
+    background : None, array or callable
+        Background luminance ``I_b``, cd/m2: ``None`` for the log average
+        of each image (global), an array broadcastable to ``(..., H, W)``,
+        or a function from the luminance image ``(..., H, W)`` to one, e.g.
+        ``functools.partial(goal.BACKGROUNDS["bilateral"], scale=8)``,
+        evaluated inside this jitted function.
+
+    Returns
+    -------
+    array, shape (..., H, W, 3)
+        Display-relative linear RGB in ``[0, 1]``, in the frame's dtype.
+
+    Examples
+    --------
+    >>> frame = jnp.full((2, 2, 3), 10.0)  # a grey 10 cd/m2 frame
+    >>> round(float(tone_map(Photographic(a=0.18), frame)[0, 0, 0]), 4)  # a / (1 + a)
+    0.1525
+    """
+    frame = jnp.asarray(frame)
+    if frame.ndim < 3 or frame.shape[-1] != 3 or not jnp.issubdtype(frame.dtype, jnp.floating):
+        raise ValueError(
+            "frame: expected floating-point linear RGB of shape (..., H, W, 3) in cd/m2, "
+            f"got {frame.dtype} of shape {frame.shape}"
+        )
+    frame = eqx.error_if(frame, ~jnp.all(jnp.isfinite(frame)), "frame: expected finite values")
+    params = _as_dtype(params, frame.dtype)
+    L = jnp.maximum(photopic_luminance(frame), LUMINANCE_FLOOR)
+    I_b = jnp.maximum(_background(L, background), LUMINANCE_FLOOR)
+    Y = params.curve(L, I_b)
+    return jnp.clip(frame * (Y / L)[..., None], 0.0, 1.0)
