@@ -18,6 +18,14 @@ from pathlib import Path
 import numpy as np
 
 FORMATS = ("png", "mp4", "exr", "pfm")
+OPERATORS = (
+    "pattanaik2000",
+    "schlick1994",
+    "tumblin1999",
+    "reinhard-devlin",
+    "photographic",
+    "ward-jnd",
+)
 CONTACT_FRAMES = 12
 
 
@@ -48,7 +56,7 @@ def _positive(text):
 
 
 def build_parser():
-    from jaxadapt.operators.goal import GOALS
+    from jaxadapt.operators.goal import BACKGROUNDS, GOALS
     from jaxadapt.scenes import SCENES
 
     parser = argparse.ArgumentParser(
@@ -62,8 +70,9 @@ def build_parser():
         help="tone-map an HDR sequence with time-dependent adaptation (Pattanaik et al. 2000)",
         description="Tone-map an HDR frame sequence (absolute cd/m2) the way an observer "
         "whose eyes adapt over time would see it on an ordinary display (Pattanaik et al. "
-        "2000). With no FILE, renders a built-in scene. Writes display frames, a contact "
-        "sheet, a plot of the adaptation state and diagnostics.csv into --out.",
+        "2000), or with one of the classic tone curves (--operator). With no FILE, renders "
+        "a built-in scene. Writes display frames, a contact sheet, a plot of the adaptation "
+        "state and diagnostics.csv into --out.",
     )
     render.add_argument(
         "files",
@@ -105,6 +114,29 @@ def build_parser():
         help="multiply input values by this to calibrate them to cd/m2 (default: 1)",
     )
     render.add_argument(
+        "--operator",
+        choices=OPERATORS,
+        default="pattanaik2000",
+        help="the operator: pattanaik2000 (time-dependent adaptation, the default) or a "
+        "static tone curve of the HDR-imaging chapter (schlick1994, tumblin1999, "
+        "reinhard-devlin, photographic, ward-jnd)",
+    )
+    render.add_argument(
+        "--background",
+        choices=tuple(BACKGROUNDS),
+        default="global",
+        help="background (adapting) luminance: global (one per frame, the default), or a "
+        "local estimate per pixel (box, gaussian, bilateral, adaptive, multiscale); with "
+        "pattanaik2000 a local background gives per-pixel, time-dependent adaptation",
+    )
+    render.add_argument(
+        "--background-scale",
+        type=_positive,
+        default=8.0,
+        metavar="PX",
+        help="size of the local background estimator, pixels (default: 8)",
+    )
+    render.add_argument(
         "--adaptation-goal",
         choices=GOALS,
         default=None,
@@ -144,26 +176,15 @@ def build_parser():
 
 # -- outputs ------------------------------------------------------------------
 
-DIAGNOSTIC_COLUMNS = (
-    "t",
-    "G_rod",
-    "G_cone",
-    "A_rod",
-    "A_cone",
-    "B_rod",
-    "B_cone",
-    "sigma_rod",
-    "sigma_cone",
-    "rule",
-)
 
-
-def write_diagnostics(path, diag):
+def write_diagnostics(path, table):
+    """One row per frame: every per-frame column of the operator's diagnostics."""
+    columns = [name for name, column in table.items() if column.ndim == 1]
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(DIAGNOSTIC_COLUMNS)
-        for i in range(len(diag["t"])):
-            writer.writerow([f"{diag[c][i]:.6g}" for c in DIAGNOSTIC_COLUMNS])
+        writer.writerow(columns)
+        for i in range(len(table["t"])):
+            writer.writerow([f"{table[c][i]:.6g}" for c in columns])
 
 
 # -- the render command -------------------------------------------------------
@@ -183,20 +204,44 @@ def _source(args):
     return pipeline.from_scene(SCENES[args.scene](**kwargs), args.multiplier)
 
 
+def _operator(args, source):
+    """The operator module, its parameters and the plot of its diagnostics."""
+    from functools import partial
+
+    from jaxadapt import figures
+
+    if args.operator == "pattanaik2000":
+        from jaxadapt.operators import pattanaik2000 as op
+
+        goal = args.adaptation_goal or source.goal
+        params = op.Params(
+            goal=goal,
+            pixels_per_degree=args.pixels_per_degree or source.pixels_per_degree,
+            background=args.background,
+            background_scale=args.background_scale,
+        )
+        where = "goal " + goal if args.background == "global" else args.background + " background"
+        title = f"{source.name}: Pattanaik et al. 2000, {where}"
+        return op, params, partial(figures.plot_adaptation, title=title)
+    from jaxadapt.operators import classic
+
+    params = classic.Params(
+        classic.TONE_CURVES[args.operator](), args.background, args.background_scale
+    )
+    title = f"{source.name}: {args.operator}, {args.background} background"
+    return classic, params, partial(figures.plot_columns, title=title)
+
+
 def render(args, console):
     from rich.progress import Progress
 
     from jaxadapt import display, figures, io, pipeline
-    from jaxadapt.operators import pattanaik2000 as op
 
     if args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
-    goal = args.adaptation_goal or source.goal
-    params = op.Params(
-        goal=goal, pixels_per_degree=args.pixels_per_degree or source.pixels_per_degree
-    )
+    op, params, plot = _operator(args, source)
     encode = display.ENCODINGS[args.encoding]
 
     out = args.out
@@ -238,9 +283,7 @@ def render(args, console):
         table = {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
         write_diagnostics(staging / "diagnostics.csv", table)
         io.write_image(staging / "contact_sheet.png", figures.contact_sheet(np.stack(contact)))
-        figures.plot_adaptation(
-            staging / "adaptation.png", table, f"{source.name}: Pattanaik et al. 2000, goal {goal}"
-        )
+        plot(staging / "adaptation.png", table)
         written = sorted(p.name for p in staging.iterdir())
         for name in written:
             (staging / name).replace(out / name)

@@ -59,3 +59,21 @@ def contact_sheet(frames, columns=4):
             frames[k]
         )
     return sheet
+
+
+def plot_columns(path, table, title):
+    """Every per-frame column of a diagnostics table against time, log scale.
+
+    For operators whose diagnostics are not the 2000 operator's (the static
+    tone curves: the background luminance of each frame).
+    """
+    t = table["t"]
+    columns = [name for name, column in table.items() if name != "t" and column.ndim == 1]
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
+    for name in columns:
+        ax.semilogy(t, np.maximum(table[name], 1e-12), label=name)
+    ax.set(xlabel="time (s)", ylabel="cd/m$^2$", title=title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)

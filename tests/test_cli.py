@@ -138,3 +138,32 @@ def test_help_explains_every_option(capsys):
     text = capsys.readouterr().out
     for option in ("--scene", "--fps", "--multiplier", "--adaptation-goal", "--out", "--format"):
         assert option in text
+
+
+@pytest.mark.parametrize(
+    "operator, background",
+    [("photographic", "global"), ("ward-jnd", "adaptive"), ("pattanaik2000", "bilateral")],
+)
+def test_operators_and_backgrounds(tmp_path, capsys, operator, background):
+    out = tmp_path / "out"
+    args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "0.2"]
+    status, err = _run(
+        capsys,
+        *args,
+        "--operator",
+        operator,
+        "--background",
+        background,
+        "--background-scale",
+        "2",
+        "--format",
+        "exr",
+        "--out",
+        str(out),
+    )
+    assert status == 0, err
+    frame = io.read_hdr(out / "frame_00005.exr")
+    assert np.all((frame >= 0) & (frame <= 1)) and frame.max() > 0.05
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    assert len(rows) == 6
+    assert ("background" in rows[0]) == (operator != "pattanaik2000")

@@ -9,6 +9,7 @@ import pytest
 from jaxadapt import scenes
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators import pattanaik2000 as op
+from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import bleach_cone, bleach_rod
 
 P = op.Params()
@@ -233,3 +234,57 @@ def test_bad_dt_is_named():
 def test_unknown_goal_is_named():
     with pytest.raises(ValueError, match="goal: expected one of"):
         op.Params(goal="median")
+
+
+# -- local time-dependent adaptation (HDR chapter, issue 5 part 4) ------------
+
+
+def _half_lit(T=4, H=6, W=10, dark=5.0, bright=5000.0):
+    frame = jnp.full((H, W, 3), dark).at[:, W // 2 :].set(bright)
+    return jnp.broadcast_to(frame, (T, H, W, 3))
+
+
+def test_local_background_on_a_uniform_scene_is_the_global_operator():
+    levels = jnp.array([1e-3, 1e-3, 1e3, 1e3, 5.0, 5e4])
+    frames = jnp.broadcast_to(levels[:, None, None, None], (6, 5, 7, 3))
+    dt = 0.05
+    out_global, diag_global = op.run(P, frames, dt)
+    for background in ("gaussian", "bilateral", "adaptive"):
+        local = op.Params(background=background, background_scale=2.0)
+        out_local, diag_local = op.run(local, frames, dt)
+        np.testing.assert_allclose(out_local, out_global, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(diag_local.state.A_cone, diag_global.state.A_cone, rtol=1e-9)
+
+
+def test_local_state_adapts_per_pixel_with_the_exact_kinetics():
+    # Adapted to 5 cd/m2 everywhere, then half the field jumps to 5000: the
+    # bright half's cone adaptation follows the neural filter towards its
+    # local background, the dark half stays; rules and curves differ.
+    params = op.Params(background="gaussian", background_scale=1.0)
+    frames = _half_lit(T=3, W=40)
+    start = op.init(params, None, adaptation=5.0)
+    _, diag = op.run(params, frames, 0.05, state=start)
+    A = diag.final_state.A_cone
+    assert A.shape == (6, 40)
+    G = op.frame_goals(params, frames[0], None)[1]
+    expected = kinetics.neural_step(5.0, G, params.t0_cone, 0.15)
+    np.testing.assert_allclose(A, expected, rtol=1e-9)
+    assert float(A[:, -1].mean()) > 1000 and float(A[:, 0].mean()) == pytest.approx(5.0, rel=1e-3)
+
+
+def test_local_run_equals_a_loop_of_step():
+    params = op.Params(background="bilateral", background_scale=2.0)
+    frames = _sequence(W=12)
+    out, diag = op.run(params, frames, 0.04)
+    state = op.init(params, frames[0])
+    for k in range(frames.shape[0]):
+        state, frame_out = op.step(params, state, frames[k], 0.04)
+        np.testing.assert_allclose(frame_out, out[k], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(state.B_rod, diag.final_state.B_rod, rtol=1e-12)
+
+
+def test_unknown_background_and_bad_scale_are_named():
+    with pytest.raises(ValueError, match="background: expected one of"):
+        op.Params(background="median")
+    with pytest.raises(ValueError, match="background_scale: expected a positive"):
+        op.Params(background="gaussian", background_scale=0.0)

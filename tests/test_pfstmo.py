@@ -101,3 +101,18 @@ def test_pfstmo_bleaching_diverges_on_the_title_step_and_ours_does_not(tmp_path)
     _, diag = op.run(params, jnp.asarray(frames), scene.dt[0])
     B_ours = np.asarray(diag.state.B_rod)
     assert np.all((B_ours >= 0) & (B_ours <= 1))
+
+
+def test_local_mode_keeps_time_dependence_where_pfstmo_drops_it(tmp_path):
+    # pfstmo's --local "cancels time-dependent effects": after a step to a
+    # constant half-lit scene its frames are all the same. Our local
+    # background keeps per-pixel kinetics: the frames change as the eye adapts.
+    dark = np.full((8, 16, 3), 5.0, np.float32)
+    lit = dark.copy()
+    lit[:, 8:] = 5000.0
+    frames = np.stack([dark, lit, lit, lit])
+    theirs, _ = _pfstmo(tmp_path, frames, "-t", "--local", "--fps", "20")
+    np.testing.assert_allclose(theirs[1], theirs[3], rtol=1e-6)
+    params = op.Params(background="gaussian", background_scale=2.0)
+    ours, _ = op.run(params, jnp.asarray(frames), 0.05)
+    assert float(jnp.abs(ours[1] - ours[3]).max()) > 0.05

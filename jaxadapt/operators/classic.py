@@ -20,12 +20,21 @@ Reinhard, Ward, Pattanaik, Debevec (2005), *High Dynamic Range Imaging*,
 chapter 6, §6.3.1-6.3.2 and Eq 6.2-6.3 (``shared/seeds/001_*.txt``).
 """
 
+from functools import partial
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxadapt.color import photopic_luminance
-from jaxadapt.operators.goal import LUMINANCE_FLOOR, global_background
+from jaxadapt.operators.goal import (
+    BACKGROUNDS,
+    LUMINANCE_FLOOR,
+    estimate_background,
+    global_background,
+)
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.physiology.threshold import TVI_MODELS
 from jaxadapt.spatial import check_value
@@ -409,3 +418,94 @@ def tone_map(params, frame, background=None):
     I_b = jnp.maximum(_background(L, background), LUMINANCE_FLOOR)
     Y = params.curve(L, I_b)
     return jnp.clip(frame * (Y / L)[..., None], 0.0, 1.0)
+
+
+# -- the operator contract -------------------------------------------------------
+
+
+class Params(eqx.Module):
+    """A tone curve with its background: the operator contract's parameters.
+
+    With :func:`init`, :func:`step`, :func:`run` and
+    :func:`diagnostics_table`, any curve of :data:`TONE_CURVES` runs where
+    the time-dependent operators do (the command line, the pipeline). The
+    curves are static: they have no adaptation state.
+
+    Attributes
+    ----------
+    curve : Schlick1994, Tumblin1999, ReinhardDevlin, Photographic or WardJND
+        The curve and its parameters.
+    background : str
+        Background estimator, a name of
+        :data:`jaxadapt.operators.goal.BACKGROUNDS` (static).
+    background_scale : float
+        Its size in pixels, for the local estimators (static).
+    """
+
+    curve: eqx.Module = eqx.field(default_factory=Photographic)
+    background: str = eqx.field(default="global", static=True)
+    background_scale: float = eqx.field(default=8.0, static=True)
+
+    def __check_init__(self):
+        if self.background not in BACKGROUNDS:
+            raise ValueError(
+                f"background: expected one of {tuple(BACKGROUNDS)}, got {self.background!r}"
+            )
+        _positive("background_scale", self.background_scale)
+
+
+class Diagnostics(NamedTuple):
+    """Per-frame record of :func:`run`.
+
+    Attributes
+    ----------
+    t : array, (T,)
+        Time of each frame, s, from 0.
+    background : array, (T,)
+        Geometric mean of the frame's background luminance, cd/m2.
+    final_state : None
+        The curves have no state.
+    """
+
+    t: jax.Array
+    background: jax.Array
+    final_state: None = None
+
+
+def init(params, first_frame, *, gaze=None, adaptation=None):
+    """No state: the curves are static. Returns None."""
+    return None
+
+
+def _frame_background(params):
+    return partial(estimate_background, name=params.background, scale=params.background_scale)
+
+
+def step(params, state, frame, dt, *, gaze=None, key=None):
+    """Tone-map one frame ``(H, W, 3)``; returns ``(None, display frame)``."""
+    return None, tone_map(params.curve, frame, _frame_background(params))
+
+
+@eqx.filter_jit
+def run(params, frames, dt, *, gaze=None, key=None, state=None):
+    """Tone-map frames ``(T, H, W, 3)`` (cd/m2) one by one with ``params.curve``.
+
+    ``dt`` (s, scalar or ``(T,)``) only dates the diagnostics; ``gaze``,
+    ``key`` and ``state`` are accepted for the shared contract and unused.
+    Returns display frames ``(T, H, W, 3)`` in [0, 1] and :class:`Diagnostics`.
+    """
+    frames = jnp.asarray(frames)
+    if frames.ndim != 4:
+        raise ValueError(f"frames: expected shape (T, H, W, 3) in cd/m2, got shape {frames.shape}")
+    background = _frame_background(params)
+    out = jax.lax.map(lambda f: tone_map(params.curve, f, background), frames)
+    L = jnp.maximum(photopic_luminance(frames), LUMINANCE_FLOOR)
+    I_b = jnp.maximum(background(L), LUMINANCE_FLOOR)
+    dt = jnp.broadcast_to(jnp.asarray(dt, frames.dtype), frames.shape[:1])
+    mean_background = jnp.exp(jnp.mean(jnp.log(I_b), axis=(-2, -1)))
+    return out, Diagnostics(jnp.cumsum(dt) - dt, mean_background)
+
+
+def diagnostics_table(diag):
+    """Per-frame columns of a :class:`Diagnostics` (``t``, ``background``), numpy."""
+    return {"t": np.asarray(diag.t), "background": np.asarray(diag.background)}

@@ -425,3 +425,15 @@ BACKGROUNDS = {
     "adaptive": adaptive_background,
     "multiscale": multiscale_background,
 }
+
+
+def estimate_background(L, name, scale):
+    """The background ``BACKGROUNDS[name]`` of ``L (..., H, W)``, cd/m2, as a map.
+
+    ``scale`` (pixels) is passed to the local estimators; the global ones
+    (``"global"``, ``"arithmetic"``) have no size and are broadcast to the
+    image's shape.
+    """
+    estimator = BACKGROUNDS[name]
+    I_b = estimator(L) if name in ("global", "arithmetic") else estimator(L, scale=scale)
+    return jnp.broadcast_to(I_b, L.shape)

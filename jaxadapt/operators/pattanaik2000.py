@@ -90,6 +90,16 @@ class Params(eqx.Module):
     goal : str
         Adaptation-goal finder: ``"log_average"``, ``"white_fraction"`` or
         ``"foveal"`` (see :mod:`jaxadapt.operators.goal`). Static.
+    background : str
+        ``"global"`` (the default): one goal per frame from ``goal``, the
+        paper's operator. Any other name of
+        :data:`jaxadapt.operators.goal.BACKGROUNDS` (``"gaussian"``,
+        ``"bilateral"``, ``"adaptive"``, ...): a goal per pixel, the local
+        background luminance, and a state per pixel advanced with the same
+        exact kinetics, so that local adaptation stays time-dependent (unlike
+        pfstmo's ``--local``, which drops time dependence). Static.
+    background_scale : float
+        Size of the local background estimator, pixels (its ``scale``). Static.
     """
 
     n: jax.Array = eqx.field(default=0.73, converter=_array)
@@ -107,10 +117,21 @@ class Params(eqx.Module):
     white_percentile: jax.Array = eqx.field(default=99.0, converter=_array)
     pixels_per_degree: jax.Array = eqx.field(default=30.0, converter=_array)
     goal: str = eqx.field(default="log_average", static=True)
+    background: str = eqx.field(default="global", static=True)
+    background_scale: float = eqx.field(default=8.0, static=True)
 
     def __check_init__(self):
         if self.goal not in goals.GOALS:
             raise ValueError(f"goal: expected one of {goals.GOALS}, got {self.goal!r}")
+        if self.background not in goals.BACKGROUNDS:
+            raise ValueError(
+                f"background: expected one of {tuple(goals.BACKGROUNDS)}, got {self.background!r}"
+            )
+        if not self.background_scale > 0:
+            raise ValueError(
+                "background_scale: expected a positive size in pixels, "
+                f"got {self.background_scale!r}"
+            )
 
 
 class State(NamedTuple):
@@ -147,6 +168,9 @@ class Observer(NamedTuple):
 class Diagnostics(NamedTuple):
     """Per-frame record of a :func:`run` (leading axis: frames).
 
+    With a local background, every per-frame value is the one at the gaze
+    point (the pixel nearest it): what the fovea is adapted to.
+
     Attributes
     ----------
     t : array, (T,)
@@ -163,7 +187,8 @@ class Diagnostics(NamedTuple):
         Display value (linear, [0, 1]) of a neutral scene luminance
         ``10**CURVE_LOG10_LUMINANCE`` cd/m2: the graphs under Fig. 7.
     final_state : State
-        State after the last frame's ``dt``, to continue a sequence.
+        State after the last frame's ``dt``, to continue a sequence (maps
+        ``(H, W)`` with a local background).
     """
 
     t: jax.Array
@@ -364,16 +389,21 @@ def curve(params, obs):
 # -- goals and kinetics -------------------------------------------------------
 
 
-def frame_goals(params, frame, gaze=None):
-    """Adaptation goals ``(G_rod, G_cone)`` of a frame ``(H, W, 3)``, cd/m2."""
+def frame_goals(params, frame, gaze):
+    """Adaptation goals ``(G_rod, G_cone)`` of a frame ``(H, W, 3)``, cd/m2.
+
+    Scalars, or ``(H, W)`` maps of the local background when
+    ``params.background`` is not ``"global"``. ``gaze`` ``(x, y)`` in
+    pixels is used by the ``"foveal"`` goal.
+    """
     L = jnp.stack([scotopic_luminance(frame), photopic_luminance(frame)])
-    if params.goal == "log_average":
+    if params.background != "global":
+        G = goals.estimate_background(L, params.background, params.background_scale)
+    elif params.goal == "log_average":
         G = goals.log_average(L)
     elif params.goal == "white_fraction":
         G = goals.white_fraction(L, params.goal_fraction, params.white_percentile)
     else:
-        if gaze is None:
-            gaze = jnp.array([frame.shape[-2] - 1, frame.shape[-3] - 1]) / 2.0
         G = jax.vmap(goals.foveal_log_average, (0, None, None))(L, gaze, params.pixels_per_degree)
     return G[0], G[1]
 
@@ -434,6 +464,11 @@ def _as_dtype(tree, dtype):
 # -- the contract -------------------------------------------------------------
 
 
+def _centre(frame):
+    """The centre ``(x, y)`` of a frame ``(..., H, W, 3)``, pixels: the default gaze."""
+    return jnp.array([frame.shape[-2] - 1, frame.shape[-3] - 1], frame.dtype) / 2.0
+
+
 @eqx.filter_jit
 def init(params, first_frame, *, gaze=None, adaptation=None):
     """State of a viewer fully adapted before the sequence starts.
@@ -444,20 +479,49 @@ def init(params, first_frame, *, gaze=None, adaptation=None):
     first_frame : array, shape (H, W, 3)
         Linear RGB, cd/m2; the viewer is adapted to its goals.
     gaze : array, shape (2,), optional
-        Gaze point ``(x, y)`` in pixels, for the ``"foveal"`` goal.
+        Gaze point ``(x, y)`` in pixels, for the ``"foveal"`` goal (default:
+        the centre).
     adaptation : float, optional
         Adapt instead to this luminance (cd/m2) for rods and cones, e.g.
-        0.01 for the moonlit start of the title-page sequence.
+        0.01 for the moonlit start of the title-page sequence. With a local
+        background the state is then uniform until the first frame.
 
     Returns
     -------
     State
+        Scalars, or ``(H, W)`` maps with a local background.
     """
     if adaptation is not None:
         A = jnp.asarray(adaptation, dtype=jnp.result_type(float))
         return static_state(params, A, A)
     first_frame = _check_frames(first_frame, 3, "first_frame")
+    gaze = _centre(first_frame) if gaze is None else gaze
     return static_state(params, *frame_goals(params, first_frame, gaze))
+
+
+def _probe(x, gaze):
+    """``x`` itself if a scalar, else its value at the pixel nearest ``gaze``."""
+    if x.ndim == 0:
+        return x
+    H, W = x.shape
+    col = jnp.clip(jnp.round(gaze[0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.round(gaze[1]).astype(jnp.int32), 0, H - 1)
+    return x[row, col]
+
+
+def _show(params, state, frame, dt, gaze):
+    """Show one frame, then advance the state over its duration.
+
+    The body of :func:`step` and of :func:`run`'s scan. Returns the new
+    state, the display frame and the frame's record at the gaze point
+    ``(G_rod, G_cone, state, observer, curve)``.
+    """
+    G_rod, G_cone = frame_goals(params, frame, gaze)
+    obs = observer(params, state)
+    out = tone_map(params, obs, frame)
+    seen = jax.tree.map(lambda x: _probe(x, gaze), (G_rod, G_cone, state, obs))
+    record = (*seen, curve(params, seen[-1]))
+    return advance(params, state, G_rod, G_cone, dt), out, record
 
 
 def step(params, state, frame, dt, *, gaze=None, key=None):
@@ -473,7 +537,7 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     dt : float
         How long the frame is held, s.
     gaze : array, shape (2,), optional
-        Gaze point ``(x, y)``, pixels (``"foveal"`` goal).
+        Gaze point ``(x, y)``, pixels (``"foveal"`` goal; default the centre).
     key : ignored
         The operator is deterministic; accepted so that all operators share
         one signature.
@@ -483,6 +547,7 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     (State, array)
         The state after ``dt`` and the display frame ``(H, W, 3)`` in [0, 1].
     """
+    gaze = None if gaze is None else jnp.asarray(gaze)
     return _step(params, state, jnp.asarray(frame), jnp.asarray(dt), gaze)
 
 
@@ -491,9 +556,9 @@ def _step(params, state, frame, dt, gaze):
     frame = _check_frames(frame, 3, "frame")
     params, state, dt, gaze = _as_dtype((params, state, dt, gaze), frame.dtype)
     dt = _check_dt(dt, 1)[0]
-    G_rod, G_cone = frame_goals(params, frame, gaze)
-    out = tone_map(params, observer(params, state), frame)
-    return advance(params, state, G_rod, G_cone, dt), out
+    gaze = _centre(frame) if gaze is None else gaze
+    state, out, _ = _show(params, state, frame, dt, gaze)
+    return state, out
 
 
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
@@ -507,8 +572,9 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     dt : float or array, shape (T,)
         Duration of each frame, s (``1/fps``).
     gaze : array, shape (T, 2), optional
-        Gaze path ``(x, y)`` in pixels, for the ``"foveal"`` goal (default:
-        the image centre).
+        Gaze path ``(x, y)`` in pixels, for the ``"foveal"`` goal and for
+        the point a local operator's diagnostics are read at (default: the
+        image centre).
     key : ignored
         The operator is deterministic.
     state : State, optional
@@ -519,7 +585,10 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     -------
     (array, Diagnostics)
         Display frames ``(T, H, W, 3)``, linear, in [0, 1], and the per-frame
-        record. ``run`` gives the same frames as a loop of :func:`step`.
+        record (at the gaze point, for a local background). ``run`` is a
+        ``lax.scan`` of the body of :func:`step`, so it gives the same frames
+        as a loop of it; each frame's pixels are mapped in one vectorised
+        pass, which keeps a frame's intermediates small.
 
     Examples
     --------
@@ -538,23 +607,21 @@ def _run(params, frames, dt, gaze, state):
     params, state, dt, gaze = _as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
     dt = _check_dt(dt, T)
-    if gaze is not None and gaze.shape != (T, 2):
-        raise ValueError(f"gaze: expected shape ({T}, 2) in pixels, got shape {gaze.shape}")
     if gaze is None:
-        G_rod, G_cone = jax.vmap(lambda f: frame_goals(params, f))(frames)
-    else:
-        G_rod, G_cone = jax.vmap(lambda f, g: frame_goals(params, f, g))(frames, gaze)
+        gaze = jnp.broadcast_to(_centre(frames), (T, 2))
+    elif gaze.shape != (T, 2):
+        raise ValueError(f"gaze: expected shape ({T}, 2) in pixels, got shape {gaze.shape}")
+    G_rod, G_cone = frame_goals(params, frames[0], gaze[0])
     if state is None:
-        state = static_state(params, G_rod[0], G_cone[0])
+        state = static_state(params, G_rod, G_cone)
+    state = jax.tree.map(lambda s: jnp.broadcast_to(s, G_cone.shape), state)
 
     def scan_step(s, inputs):
-        return advance(params, s, *inputs), s
+        s, out, record = _show(params, s, *inputs)
+        return s, (out, record)
 
-    final_state, states = jax.lax.scan(scan_step, state, (G_rod, G_cone, dt))
-    obs = jax.vmap(lambda s: observer(params, s))(states)
-    # one frame at a time: a frame's intermediates stay small, where a vmap
-    # over all frames makes XLA write each of them for the whole sequence
-    out = jax.lax.map(lambda of: tone_map(params, *of), (obs, frames))
+    final_state, (out, record) = jax.lax.scan(scan_step, state, (frames, dt, gaze))
+    G_rod, G_cone, states, obs, curves = record
     diagnostics = Diagnostics(
         t=jnp.cumsum(dt) - dt,
         G_rod=G_rod,
@@ -563,7 +630,7 @@ def _run(params, frames, dt, gaze, state):
         sigma_rod=obs.sigma_rod,
         sigma_cone=obs.sigma_cone,
         rule=obs.rule,
-        curve=jax.vmap(lambda o: curve(params, o))(obs),
+        curve=curves,
         final_state=final_state,
     )
     return out, diagnostics
