@@ -5,19 +5,17 @@ binaries are missing.
 """
 
 import re
-import shutil
-import subprocess
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxadapt import io, scenes
+from jaxadapt import peers, scenes
 from jaxadapt.operators import pattanaik2000 as op
 from jaxadapt.physiology import response
 
 pytestmark = pytest.mark.skipif(
-    shutil.which("pfstmo_pattanaik00") is None or shutil.which("pfsin") is None,
+    not peers.pfstmo_available(),
     reason="pfstmo is not installed (apt-get install pfstmo pfstools)",
 )
 
@@ -30,45 +28,20 @@ def _ramp_image(A):
     return np.repeat(np.repeat(A * RAMP[None, :, None], 2, 0), 3, 2)
 
 
-def _pfstmo(tmp_path, frames, *options):
-    """Run ``pfsin | pfstmo_pattanaik00 OPTIONS | pfsout`` on float frames.
-
-    Returns the output frames and pfstmo's ``--verbose`` report.
-    """
-    for k, frame in enumerate(frames):
-        io.write_image(tmp_path / f"in_{k:04d}.pfm", np.asarray(frame, np.float32))
-    last = len(frames) - 1
-    read = subprocess.Popen(
-        ["pfsin", str(tmp_path / "in_%04d.pfm"), "--frames", f"0:{last}"], stdout=subprocess.PIPE
-    )
-    tmo = subprocess.Popen(
-        ["pfstmo_pattanaik00", "--verbose", *options],
-        stdin=read.stdout,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
-    write = subprocess.run(
-        ["pfsout", str(tmp_path / "out_%04d.pfm")], stdin=tmo.stdout, capture_output=True
-    )
-    report = tmo.stderr.read().decode()
-    assert tmo.wait() == 0 and read.wait() == 0 and write.returncode == 0, report
-    return [io.read_hdr(tmp_path / f"out_{k:04d}.pfm") for k in range(len(frames))], report
-
-
 def _ours_static(A):
     state = op.static_state(P, jnp.asarray(A), jnp.asarray(A))
     return np.asarray(op.tone_map(P, op.observer(P, state), jnp.asarray(_ramp_image(A)[0])))[:, 1]
 
 
 @pytest.mark.parametrize("A", [0.01, 1.0, 25.0, 1000.0])
-def test_static_tone_curve_agrees_with_pfstmo_given_eq4_as_printed(tmp_path, monkeypatch, A):
+def test_static_tone_curve_agrees_with_pfstmo_given_eq4_as_printed(monkeypatch, A):
     # pfstmo follows Eq 4 as printed (numerator 2.5874 A); we follow the
     # paper's display table (12.9223 A, see response.sigma_rod). With the
     # printed form substituted, the rest of the pipeline (goals held, Hunt's
     # sigma and B, references, the rules of §4.3, the display inverse) agrees:
     # to 3 %, and near display black to 2e-4 of white (a twentieth of an
     # 8-bit step; pfstmo lands a little lower there in the scotopic range).
-    (theirs,), _ = _pfstmo(tmp_path, [_ramp_image(A)], "--cone", str(A), "--rod", str(A))
+    (theirs,), _ = peers.pfstmo_pattanaik00([_ramp_image(A)], "--cone", str(A), "--rod", str(A))
     printed = response.sigma_rod
     monkeypatch.setattr(op, "sigma_rod", lambda A, n: printed(A, n) / 5.0)
     ours = _ours_static(A)
@@ -77,22 +50,22 @@ def test_static_tone_curve_agrees_with_pfstmo_given_eq4_as_printed(tmp_path, mon
     np.testing.assert_allclose(ours[shown], theirs[0, shown, 1], rtol=0.03, atol=2e-4)
 
 
-def test_photopic_curves_agree_with_pfstmo_as_they_are(tmp_path):
+def test_photopic_curves_agree_with_pfstmo_as_they_are():
     # Above 25 cd/m2 the rods are bleached (B_rod < 0.002), so the reading of
     # Eq 4 does not matter: our operator unchanged agrees with pfstmo.
     for A in (25.0, 1000.0):
-        (theirs,), _ = _pfstmo(tmp_path, [_ramp_image(A)], "--cone", str(A), "--rod", str(A))
+        (theirs,), _ = peers.pfstmo_pattanaik00([_ramp_image(A)], "--cone", str(A), "--rod", str(A))
         shown = (theirs[0, :, 1] > 1e-3) & (theirs[0, :, 1] < 0.999)
         np.testing.assert_allclose(_ours_static(A)[shown], theirs[0, shown, 1], rtol=0.03)
 
 
-def test_pfstmo_bleaching_diverges_on_the_title_step_and_ours_does_not(tmp_path):
+def test_pfstmo_bleaching_diverges_on_the_title_step_and_ours_does_not():
     # The moonlight-to-sunlight step at 30 ms frames: pfstmo's explicit Eq 7
     # update drives the rod pigment out of [0, 1] with growing oscillations;
     # the exact step on the same frames stays in [0, 1].
     scene = scenes.title_step(48, 32, duration=0.45)
     frames = np.asarray(scene.render(scene.times))
-    _, report = _pfstmo(tmp_path, frames, "-t", "--fps", str(1 / 0.030))
+    _, report = peers.pfstmo_pattanaik00(frames, "-t", "--fps", str(1 / 0.030))
     B_pfstmo = np.array([float(v) for v in re.findall(r"bleaching rod:\s*(\S+)", report)])
     assert len(B_pfstmo) >= 10
     assert B_pfstmo.min() < 0 and B_pfstmo.max() > 1
@@ -103,7 +76,7 @@ def test_pfstmo_bleaching_diverges_on_the_title_step_and_ours_does_not(tmp_path)
     assert np.all((B_ours >= 0) & (B_ours <= 1))
 
 
-def test_local_mode_keeps_time_dependence_where_pfstmo_drops_it(tmp_path):
+def test_local_mode_keeps_time_dependence_where_pfstmo_drops_it():
     # pfstmo's --local "cancels time-dependent effects": after a step to a
     # constant half-lit scene its frames are all the same. Our local
     # background keeps per-pixel kinetics: the frames change as the eye adapts.
@@ -111,7 +84,7 @@ def test_local_mode_keeps_time_dependence_where_pfstmo_drops_it(tmp_path):
     lit = dark.copy()
     lit[:, 8:] = 5000.0
     frames = np.stack([dark, lit, lit, lit])
-    theirs, _ = _pfstmo(tmp_path, frames, "-t", "--local", "--fps", "20")
+    theirs, _ = peers.pfstmo_pattanaik00(frames, "-t", "--local", "--fps", "20")
     np.testing.assert_allclose(theirs[1], theirs[3], rtol=1e-6)
     params = op.Params(background="gaussian", background_scale=2.0)
     ours, _ = op.run(params, jnp.asarray(frames), 0.05)
