@@ -52,6 +52,19 @@ def _sp_ratio_d65():
 SP_RATIO_D65 = float(_sp_ratio_d65())
 
 
+def _lms_matrix():
+    """BT.709 RGB to Hunt-Pointer-Estevez LMS, rows scaled so that white
+    ``(1, 1, 1)`` gives ``(1, 1, 1)``: cone excitations in cd/m2 of white."""
+    M = np.asarray(colour.appearance.hunt.MATRIX_XYZ_TO_HPE) @ RGB709_TO_XYZ
+    return M / M.sum(axis=1, keepdims=True)
+
+
+#: Linear BT.709 RGB to cone excitations L, M, S (cd/m2 for white light).
+RGB_TO_LMS = _lms_matrix()
+#: Its inverse.
+LMS_TO_RGB = np.linalg.inv(RGB_TO_LMS)
+
+
 def photopic_luminance(rgb):
     """Photopic luminance ``Y = w_P . rgb`` (cd/m2) of ``(..., 3)`` linear BT.709 RGB."""
     return rgb @ jnp.asarray(W_PHOTOPIC, dtype=rgb.dtype)

@@ -1,5 +1,6 @@
 """Display encodings: from display-relative linear values in [0, 1] to code values."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -25,3 +26,15 @@ ENCODINGS = {"srgb": encode_srgb, "gamma": encode_gamma, "linear": lambda v: jnp
 def to_uint8(v):
     """Quantise encoded values in [0, 1] to 8-bit code values (round to nearest)."""
     return np.asarray(jnp.round(jnp.clip(v, 0.0, 1.0) * 255.0)).astype(np.uint8)
+
+
+def dither(J, key, levels=255):
+    """Temporal dithering of encoded values ``J`` in [0, 1] to ``levels`` steps.
+
+    Jacobs et al. (2015), §2.4: ``J levels = J_I + J_F`` is rounded up to
+    ``J_I + 1`` with probability ``J_F``, independently for every channel of
+    every pixel (one uniform draw each from ``key``, which the caller
+    changes every frame), so that the average over frames is ``J``.
+    """
+    u = jax.random.uniform(key, J.shape, dtype=J.dtype)
+    return jnp.clip(jnp.floor(J * levels + u), 0.0, levels) / levels

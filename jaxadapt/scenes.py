@@ -270,3 +270,311 @@ def tunnel_drive(
 
 
 SCENES = {"tunnel": tunnel_drive, "title-step": title_step}
+
+
+# -- stimuli of Jacobs et al. (2015) ------------------------------------------
+#
+# Scenes for the gaze-aware renderer (jaxadapt.operators.jacobs2015): a
+# flash, the afterimage stimuli of its Fig. 3 b-d, and a mesopic
+# ColorChecker, with built-in gaze paths and a reader for recorded ones.
+
+
+def fixate(x, y):
+    """A gaze path that rests on ``(x, y)`` pixels: ``gaze(times) -> (K, 2)``.
+
+    Examples
+    --------
+    >>> fixate(3.0, 4.0)(np.arange(2)).tolist()
+    [[3.0, 4.0], [3.0, 4.0]]
+    """
+
+    def gaze(times):
+        return np.tile(np.array([x, y], dtype=np.float64), (len(np.atleast_1d(times)), 1))
+
+    return gaze
+
+
+def saccade(start, end, at):
+    """A gaze path that fixates ``start`` (x, y pixels) until ``at`` seconds,
+    then jumps to ``end`` (a saccade lasts tens of milliseconds, less than a
+    frame of a 30 Hz eye tracker).
+
+    Examples
+    --------
+    >>> saccade((0, 0), (5, 1), at=1.0)(np.array([0.5, 1.0])).tolist()
+    [[0.0, 0.0], [5.0, 1.0]]
+    """
+
+    def gaze(times):
+        after = np.atleast_1d(times)[:, None] >= at
+        return np.where(after, np.asarray(end, np.float64), np.asarray(start, np.float64))
+
+    return gaze
+
+
+def read_gaze_csv(path):
+    """Read a gaze recording: a CSV of ``t, x, y`` rows (s, pixels).
+
+    An optional header line ``t,x,y`` is skipped. ``x`` and ``y`` may be
+    empty or ``nan`` where the tracker lost the eye (a blink); times must
+    increase.
+
+    Returns
+    -------
+    (numpy array (N,), numpy array (N, 2))
+        Sample times and gaze points.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If a row does not hold three numbers or the times do not increase,
+        naming the file and line.
+    """
+    import csv
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"gaze: expected a CSV file of t,x,y rows, got {str(path)!r}")
+    rows = []
+    with path.open(newline="") as f:
+        for line, row in enumerate(csv.reader(f), start=1):
+            cells = [c.strip() for c in row]
+            if not any(cells) or (line == 1 and cells[:1] == ["t"]):
+                continue
+            try:
+                if len(cells) != 3:
+                    raise ValueError
+                t = float(cells[0])
+                xy = [float(c) if c else np.nan for c in cells[1:]]
+            except ValueError:
+                raise ValueError(
+                    f"gaze: expected rows of three numbers t,x,y (s, pixels) in {path}, "
+                    f"got {','.join(row)!r} on line {line}"
+                ) from None
+            rows.append([t, *xy])
+    if not rows:
+        raise ValueError(f"gaze: expected at least one t,x,y row in {path}, got none")
+    data = np.asarray(rows)
+    if not (np.all(np.isfinite(data[:, 0])) and np.all(np.diff(data[:, 0]) > 0)):
+        raise ValueError(f"gaze: expected finite, increasing times in {path}, got {data[:, 0]}")
+    return data[:, 0], data[:, 1:]
+
+
+def recorded_gaze(times, points):
+    """A gaze path through recorded samples, held from each sample to the next.
+
+    Eye trackers report fixations; holding (rather than interpolating)
+    keeps saccades sharp and blinks (NaN samples) as they were recorded.
+    Before the first sample, the first one holds.
+
+    Examples
+    --------
+    >>> path = recorded_gaze(np.array([0.0, 1.0]), np.array([[1.0, 2.0], [3.0, 4.0]]))
+    >>> path(np.array([0.5, 1.0, 9.0])).tolist()
+    [[1.0, 2.0], [3.0, 4.0], [3.0, 4.0]]
+    """
+    times, points = np.asarray(times), np.asarray(points, dtype=np.float64)
+
+    def gaze(t):
+        i = np.searchsorted(times, np.atleast_1d(t), side="right") - 1
+        return points[np.clip(i, 0, len(times) - 1)]
+
+    return gaze
+
+
+def _uniform_scene(name, image, duration, fps, gaze, pixels_per_degree, luminance=None):
+    """A scene of one image, optionally scaled over time by ``luminance(t)``."""
+    T = int(round(duration * fps))
+    times = np.arange(T) / fps
+    image = jnp.asarray(image, dtype=jnp.float32)
+
+    def render(t):
+        t = np.atleast_1d(t)
+        scale = np.ones(len(t)) if luminance is None else luminance(t)
+        return image[None] * jnp.asarray(scale, jnp.float32)[:, None, None, None]
+
+    return Scene(
+        name, times, np.full(T, 1.0 / fps), render, gaze, "foveal", None, pixels_per_degree
+    )
+
+
+def flash(
+    width=256,
+    height=256,
+    duration=4.0,
+    fps=30.0,
+    luminance=1e7,
+    flash_duration=0.125,
+    onset=0.25,
+    radius_deg=1.5,
+    field_deg=10.0,
+):
+    """A white flash over the fixation point, then darkness (Jacobs 2015, Figs. 4-7).
+
+    A disk of ``luminance`` cd/m2 (white: all cones excited equally) around
+    the centre of the frame, where the gaze rests, shown from ``onset`` for
+    ``flash_duration`` seconds (1/8 s at 1e7 cd/m2, as in Fig. 4); before and
+    after, the screen is black (0 cd/m2), so that the viewer starts
+    dark-adapted and then sees the bleaching afterimage fade.
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size, pixels.
+    duration : float
+        Length, s.
+    fps : float
+        Frames per second.
+    luminance : float
+        Flash luminance, cd/m2.
+    flash_duration, onset : float
+        Flash length and start, s.
+    radius_deg : float
+        Radius of the flash source, degrees.
+    field_deg : float
+        Horizontal field of view of the frame, degrees.
+    """
+    if flash_duration * fps < 1:
+        raise ValueError(
+            f"flash_duration: expected at least one frame (1/fps = {1 / fps:.4g} s), "
+            f"got {flash_duration!r}"
+        )
+    ppd = width / field_deg
+    y, x = np.mgrid[:height, :width]
+    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    disk = ((x - cx) ** 2 + (y - cy) ** 2 <= (radius_deg * ppd) ** 2).astype(np.float64)
+
+    def on(t):
+        return luminance * ((t >= onset - 1e-9) & (t < onset + flash_duration - 1e-9))
+
+    return _uniform_scene(
+        "flash", np.repeat(disk[..., None], 3, -1), duration, fps, fixate(cx, cy), ppd, on
+    )
+
+
+def _cross(image, cx, cy, arm, value):
+    """Draw a fixation cross (1 pixel thick) of half-length ``arm`` at (cx, cy)."""
+    cx, cy = int(round(cx)), int(round(cy))
+    image[cy, cx - arm : cx + arm + 1] = value
+    image[cy - arm : cy + arm + 1, cx] = value
+    return image
+
+
+def _afterimage_stimulus(
+    name, inducer, width, height, duration, fps, fixation, background, field_deg
+):
+    """Fig. 3 b-d: ``inducer (h, w, 3)`` on the left half, a uniform field of
+    ``background`` cd/m2 on the right half, a fixation cross at the centre of
+    each; the gaze fixates the left cross for ``fixation`` s, then saccades
+    to the right one."""
+    half = width // 2
+    image = np.full((height, width, 3), float(background))
+    image[:, :half] = inducer
+    left, right = (
+        ((half - 1) / 2.0, (height - 1) / 2.0),
+        (half + (width - half - 1) / 2.0, (height - 1) / 2.0),
+    )
+    arm = max(2, height // 40)
+    for cx, cy in (left, right):
+        _cross(image, cx, cy, arm, 0.0)
+    path = saccade(left, right, at=fixation)
+    return _uniform_scene(name, image, duration, fps, path, width / field_deg)
+
+
+def checkerboard(
+    width=512,
+    height=256,
+    duration=8.0,
+    fps=30.0,
+    fixation=5.0,
+    white=2000.0,
+    black=20.0,
+    background=200.0,
+    checks=4,
+    field_deg=30.0,
+):
+    """The adaptation-afterimage checkerboard of Jacobs 2015, Fig. 3 b-c.
+
+    A ``checks x checks`` board of ``white`` and ``black`` cd/m2 (left) and
+    a uniform field of ``background`` cd/m2, their log mean (right). After
+    fixating the board's centre for ``fixation`` seconds the viewer
+    saccades to the field, where a faint board with its brightness
+    relationships reversed appears (a negative local-adaptation afterimage).
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size, pixels; the board is ``width // 2`` by ``height``.
+    duration, fps, fixation : float
+        Length and frame rate; time of the saccade, s.
+    white, black, background : float
+        Luminances, cd/m2.
+    checks : int
+        Squares per side of the board.
+    field_deg : float
+        Horizontal field of view, degrees.
+    """
+    half = width // 2
+    y, x = np.mgrid[:height, :half]
+    parity = (x * checks // half + y * checks // height) % 2
+    board = np.where(parity[..., None] == 0, float(white), float(black)) * np.ones(3)
+    return _afterimage_stimulus(
+        "checkerboard", board, width, height, duration, fps, fixation, background, field_deg
+    )
+
+
+#: Colours of the coloured-patch stimulus (Fig. 3 d), linear BT.709 RGB with
+#: photopic luminance 1: red, green, blue, yellow.
+_PATCH_COLOURS = np.array([[1.0, 0.08, 0.08], [0.08, 1.0, 0.08], [0.1, 0.1, 1.0], [1.0, 1.0, 0.08]])
+
+
+def patches(
+    width=512,
+    height=256,
+    duration=8.0,
+    fps=30.0,
+    fixation=5.0,
+    luminance=300.0,
+    background=200.0,
+    field_deg=30.0,
+):
+    """The coloured afterimage stimulus of Jacobs 2015, Fig. 3 d.
+
+    Four saturated quadrants (red, green, blue, yellow; each of photopic
+    luminance ``luminance`` cd/m2) on the left, a neutral field of
+    ``background`` cd/m2 on the right; fixation on the quadrants' centre,
+    then a saccade to the field, where colour-opponent afterimages appear
+    (blue gives yellow, red gives cyan).
+    """
+    half = width // 2
+    colours = _PATCH_COLOURS / (_PATCH_COLOURS @ RGB709_TO_XYZ[1])[:, None]
+    y, x = np.mgrid[:height, :half]
+    quadrant = 2 * (y >= height // 2) + (x >= half // 2)
+    inducer = colours[quadrant] * luminance
+    return _afterimage_stimulus(
+        "patches", inducer, width, height, duration, fps, fixation, background, field_deg
+    )
+
+
+def mesopic(width=384, height=256, duration=2.0, fps=30.0, white_luminance=5.5e-2, field_deg=20.0):
+    """A ColorChecker at mesopic levels (Jacobs 2015, Fig. 11 and §4.2).
+
+    The chart of :func:`colorchecker_image`, scaled so that a perfect white
+    diffuser has ``white_luminance`` cd/m2 (5.5e-2, the standard of the
+    paper's mesopic experiment, at the white tile), fixated at its centre.
+    """
+    image = colorchecker_image(width, height, white_luminance)
+    return _uniform_scene(
+        "mesopic",
+        image,
+        duration,
+        fps,
+        fixate((width - 1) / 2.0, (height - 1) / 2.0),
+        width / field_deg,
+    )
+
+
+SCENES.update(flash=flash, checkerboard=checkerboard, patches=patches, mesopic=mesopic)

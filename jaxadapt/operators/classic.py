@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import photopic_luminance
+from jaxadapt.operators.checks import as_dtype
 from jaxadapt.operators.goal import (
     BACKGROUNDS,
     LUMINANCE_FLOOR,
@@ -346,15 +347,6 @@ TONE_CURVES = {
 # -- applying a curve to frames --------------------------------------------------
 
 
-def _as_dtype(params, dtype):
-    """Cast the floating-point arrays of ``params`` to the frame's dtype."""
-
-    def cast(x):
-        return x.astype(dtype) if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating) else x
-
-    return jax.tree.map(cast, params)
-
-
 def _background(L, background):
     """The background luminance of ``L`` that ``tone_map``'s argument asks for."""
     if background is None:
@@ -413,7 +405,7 @@ def tone_map(params, frame, background=None):
             f"got {frame.dtype} of shape {frame.shape}"
         )
     frame = eqx.error_if(frame, ~jnp.all(jnp.isfinite(frame)), "frame: expected finite values")
-    params = _as_dtype(params, frame.dtype)
+    params = as_dtype(params, frame.dtype)
     L = jnp.maximum(photopic_luminance(frame), LUMINANCE_FLOOR)
     I_b = jnp.maximum(_background(L, background), LUMINANCE_FLOOR)
     Y = params.curve(L, I_b)

@@ -38,6 +38,7 @@ import numpy as np
 
 from jaxadapt.color import photopic_luminance, scotopic_luminance
 from jaxadapt.operators import goal as goals
+from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
     forward_difference_slope,
@@ -425,42 +426,6 @@ def advance(params, state, G_rod, G_cone, dt):
     )
 
 
-# -- input checks -------------------------------------------------------------
-
-
-def _check_frames(frames, rank, name="frames"):
-    """Shape checks before tracing, value checks (finite, >= 0) inside jit."""
-    if (
-        frames.ndim != rank
-        or frames.shape[-1] != 3
-        or not jnp.issubdtype(frames.dtype, jnp.floating)
-    ):
-        expected = "(T, H, W, 3)" if rank == 4 else "(H, W, 3)"
-        raise ValueError(
-            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2, "
-            f"got {frames.dtype} of shape {frames.shape}"
-        )
-    bad = ~jnp.all(jnp.isfinite(frames) & (frames >= 0))
-    return eqx.error_if(frames, bad, f"{name}: expected finite, non-negative luminance (cd/m2)")
-
-
-def _check_dt(dt, T):
-    if dt.ndim > 1 or (dt.ndim == 1 and dt.shape[0] != T):
-        raise ValueError(f"dt: expected a scalar or shape ({T},) in seconds, got shape {dt.shape}")
-    dt = jnp.broadcast_to(dt, (T,))
-    return eqx.error_if(dt, ~jnp.all(dt > 0), "dt: expected positive frame durations (s)")
-
-
-def _as_dtype(tree, dtype):
-    """Cast the floating-point arrays of a pytree (params, state) to ``dtype``,
-    so that the operator computes in its input's precision."""
-
-    def cast(x):
-        return x.astype(dtype) if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating) else x
-
-    return jax.tree.map(cast, tree)
-
-
 # -- the contract -------------------------------------------------------------
 
 
@@ -494,7 +459,7 @@ def init(params, first_frame, *, gaze=None, adaptation=None):
     if adaptation is not None:
         A = jnp.asarray(adaptation, dtype=jnp.result_type(float))
         return static_state(params, A, A)
-    first_frame = _check_frames(first_frame, 3, "first_frame")
+    first_frame = check_frames(first_frame, 3, "first_frame")
     gaze = _centre(first_frame) if gaze is None else gaze
     return static_state(params, *frame_goals(params, first_frame, gaze))
 
@@ -553,9 +518,9 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze):
-    frame = _check_frames(frame, 3, "frame")
-    params, state, dt, gaze = _as_dtype((params, state, dt, gaze), frame.dtype)
-    dt = _check_dt(dt, 1)[0]
+    frame = check_frames(frame, 3, "frame")
+    params, state, dt, gaze = as_dtype((params, state, dt, gaze), frame.dtype)
+    dt = check_dt(dt, 1)[0]
     gaze = _centre(frame) if gaze is None else gaze
     state, out, _ = _show(params, state, frame, dt, gaze)
     return state, out
@@ -603,10 +568,10 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
 
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, state):
-    frames = _check_frames(frames, 4)
-    params, state, dt, gaze = _as_dtype((params, state, dt, gaze), frames.dtype)
+    frames = check_frames(frames, 4)
+    params, state, dt, gaze = as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
-    dt = _check_dt(dt, T)
+    dt = check_dt(dt, T)
     if gaze is None:
         gaze = jnp.broadcast_to(_centre(frames), (T, 2))
     elif gaze.shape != (T, 2):

@@ -189,3 +189,157 @@ def integrate(rhs, y0, ts, args, *, rtol=1e-8, atol=1e-10, max_steps=65536):
         max_steps=max_steps,
     )
     return solution.ys
+
+
+# -- cone bleaching per L, M, S (Jacobs 2015, Eqs 4-6) ------------------------
+
+
+def cone_bleaching(I, b1, b2):
+    """Photopigment bleaching ``dB/dt = b1 (1 - B) I - b2 B`` (Jacobs 2015, Eq 4).
+
+    ``B`` is the bleached fraction of a cone's pigment (Baylor et al. 1974).
+    As a relaxation (Eqs 5-6)::
+
+        k = b1 I + b2,    B_inf = b1 I / (b1 I + b2)
+
+    so that the exact step is Eq 5. Pass ``I`` of shape ``(..., 3)`` and
+    ``b1, b2`` of shape ``(3,)`` to treat the L, M and S cones at once
+    (Appendix A: ``b1 = (1.2e-3, 1.4e-4, 5.5e-7)`` per cd/m2 s,
+    ``b2 = (0.69, 1.4, 5.5)`` per s).
+
+    Parameters
+    ----------
+    I : array
+        Cone excitation, cd/m2 (equal to luminance for white light).
+    b1 : array
+        Bleaching sensitivity, 1/(cd/m2 s).
+    b2 : array
+        Regeneration rate, 1/s.
+
+    Examples
+    --------
+    >>> relax = cone_bleaching(jnp.float32(1e7), 1.2e-3, 0.69)
+    >>> round(float(relax.target), 4), float(relax.rate) > 1e4
+    (0.9999, True)
+    """
+    rate = b1 * I + b2
+    return Relaxation(rate, b1 * I / rate)
+
+
+def cone_bleaching_rhs(t, B, args):
+    """Right-hand side of :func:`cone_bleaching`; ``args = (I, b1, b2)``."""
+    I, b1, b2 = args
+    return relaxation_rhs(B, cone_bleaching(_at(I, t), b1, b2))
+
+
+def cone_bleaching_step(B, I, b1, b2, dt):
+    """Exact bleaching step of Eq 5 for ``I`` held over ``dt``; stays in [0, 1]."""
+    return relaxation_step(B, cone_bleaching(I, b1, b2), dt)
+
+
+# -- calcium (Jacobs 2015, Eqs 8-10) ------------------------------------------
+
+
+def calcium(R, c1, c2):
+    """Calcium ``dC/dt = c1 (1 - R) - c2 C`` (Jacobs 2015, Eq 8 with S = 1 - R).
+
+    The fraction of open channels ``S`` is approximated by ``1 - R`` with
+    ``R`` the Naka-Rushton response of Eq 1, as the paper does. As a
+    relaxation: ``k = c2``, ``C_inf = c1 (1 - R) / c2`` (Eq 10), and the
+    exact step is Eq 9. ``C`` lies in ``[0, C_max]``, ``C_max = c1 / c2``
+    (total darkness).
+
+    Parameters
+    ----------
+    R : array
+        Photoreceptor response, in [0, 1].
+    c1 : array
+        Calcium influx rate, 1/s (1; Appendix A).
+    c2 : array
+        Calcium efflux rate, 1/s (1; Appendix A).
+
+    Examples
+    --------
+    >>> relax = calcium(jnp.float32(0.25), 1.0, 1.0)
+    >>> float(relax.rate), float(relax.target)
+    (1.0, 0.75)
+    """
+    return Relaxation(c2 * jnp.ones_like(R), c1 * (1.0 - R) / c2)
+
+
+def calcium_rhs(t, C, args):
+    """Right-hand side of :func:`calcium`; ``args = (R, c1, c2)``."""
+    R, c1, c2 = args
+    return relaxation_rhs(C, calcium(_at(R, t), c1, c2))
+
+
+def calcium_step(C, R, c1, c2, dt):
+    """Exact calcium step of Eq 9 for ``R`` held over ``dt``."""
+    return relaxation_step(C, calcium(R, c1, c2), dt)
+
+
+# -- asymmetric log-rate adaptation (Jacobs 2015, Eq 3) ------------------------
+
+#: Half-width (log10 units) of the band around the target inside which
+#: :func:`log_adaptation_rhs` slows linearly to zero (see there).
+LOG_ADAPTATION_BAND = 1e-6
+
+
+def log_adaptation_step(A, A_T, a1, a2, dt):
+    """Exact step of Eq 3 for a target held over ``dt``: a clamped linear move.
+
+    ``A`` moves towards ``A_T`` at ``a1`` log units per second when it is
+    below (adapting to brighter light) and at ``a2`` when above (to darker),
+    and stops at the target instead of overshooting it::
+
+        A' = A + clip(A_T - A, -a2 dt, a1 dt)
+
+    This is not a relaxation (the rate does not scale with the distance), so
+    it has no :class:`Relaxation`; its continuous-time form is
+    :func:`log_adaptation_rhs`.
+
+    Parameters
+    ----------
+    A : array
+        Adaptation state, log10 cd/m2.
+    A_T : array
+        Target, log10 cd/m2.
+    a1, a2 : array
+        Rates towards brighter and darker targets, log10 units per s
+        (0.75 and 0.2; Appendix A).
+    dt : array
+        Step, s.
+
+    Examples
+    --------
+    >>> float(log_adaptation_step(0.0, 2.0, 0.75, 0.2, 1.0))
+    0.75
+    >>> float(log_adaptation_step(0.0, 0.5, 0.75, 0.2, 1.0))  # no overshoot
+    0.5
+    >>> round(float(log_adaptation_step(2.0, 0.0, 0.75, 0.2, 1.0)), 6)
+    1.8
+    """
+    return A + jnp.clip(A_T - A, -a2 * dt, a1 * dt)
+
+
+def log_adaptation_rhs(t, A, args):
+    """Right-hand side of Eq 3 for diffrax; ``args = (A_T, a1, a2)`` or
+    ``(A_T, a1, a2, band)``.
+
+    Eq 3 is ``dA/dt = a1`` below the target, ``-a2`` above it and 0 at it: a
+    discontinuous field on which an ODE solver would chatter. We integrate
+    the Lipschitz regularisation::
+
+        dA/dt = a1 clip((A_T - A) / band, 0, 1) - a2 clip((A - A_T) / band, 0, 1)
+
+    equal to Eq 3 more than ``band`` log units from the target; inside, ``A``
+    relaxes to the target at the rate ``a / band`` instead of stopping dead,
+    so the solution differs from Eq 3 by less than ``band`` (1e-6 log units
+    by default). The implicit solver of :func:`integrate` copes with the
+    stiff band; narrower bands need more steps (about 1e4 for 1e-6, 2e5 for
+    1e-9 on a 3 log-unit rise). ``A_T`` may be a :func:`goal_path`.
+    """
+    A_T, a1, a2 = args[:3]
+    band = args[3] if len(args) > 3 else LOG_ADAPTATION_BAND
+    gap = _at(A_T, t) - A
+    return a1 * jnp.clip(gap / band, 0.0, 1.0) - a2 * jnp.clip(-gap / band, 0.0, 1.0)

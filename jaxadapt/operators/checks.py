@@ -1,0 +1,47 @@
+"""Input checks and dtype handling shared by the operators.
+
+Shapes, ranks and dtypes are checked before tracing and raise
+``ValueError`` naming the argument, what was expected and what came;
+values (finite, non-negative luminance, positive durations) are checked
+inside ``jit`` with ``equinox.error_if``, which raises
+``equinox.EquinoxRuntimeError`` with the same kind of message.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+def check_frames(frames, rank, name="frames"):
+    """Frames of linear RGB in cd/m2: shape ``(T, H, W, 3)`` (rank 4) or
+    ``(H, W, 3)`` (rank 3), floating point, finite and non-negative."""
+    if (
+        frames.ndim != rank
+        or frames.shape[-1] != 3
+        or not jnp.issubdtype(frames.dtype, jnp.floating)
+    ):
+        expected = "(T, H, W, 3)" if rank == 4 else "(H, W, 3)"
+        raise ValueError(
+            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2, "
+            f"got {frames.dtype} of shape {frames.shape}"
+        )
+    bad = ~jnp.all(jnp.isfinite(frames) & (frames >= 0))
+    return eqx.error_if(frames, bad, f"{name}: expected finite, non-negative luminance (cd/m2)")
+
+
+def check_dt(dt, T):
+    """Frame durations (s): a scalar or ``(T,)``, positive; returned as ``(T,)``."""
+    if dt.ndim > 1 or (dt.ndim == 1 and dt.shape[0] != T):
+        raise ValueError(f"dt: expected a scalar or shape ({T},) in seconds, got shape {dt.shape}")
+    dt = jnp.broadcast_to(dt, (T,))
+    return eqx.error_if(dt, ~jnp.all(dt > 0), "dt: expected positive frame durations (s)")
+
+
+def as_dtype(tree, dtype):
+    """Cast the floating-point arrays of a pytree (params, state) to ``dtype``,
+    so that an operator computes in its input's precision."""
+
+    def cast(x):
+        return x.astype(dtype) if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating) else x
+
+    return jax.tree.map(cast, tree)

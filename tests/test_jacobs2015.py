@@ -1,0 +1,519 @@
+"""The 2015 gaze-aware renderer: the paper's effects, the contract, and bad input."""
+
+import colorsys
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxadapt import color, display, scenes
+from jaxadapt.operators import jacobs2015 as op
+from jaxadapt.physiology.response import naka_rushton
+from jaxadapt.spatial import gaussian_blur
+
+KEY = jax.random.key(0)
+#: Everything off: the bare global tone curve of Eqs 1-2.
+BARE = op.Params(
+    global_adaptation=False,
+    bleaching=False,
+    local_adaptation=False,
+    purkinje=False,
+    mesopic_colour=False,
+    acuity=False,
+    dithering=False,
+)
+#: The deterministic pipeline (no acuity noise, no dithering).
+SMOOTH = op.Params(acuity=False, dithering=False)
+EFFECTS = ("bleaching", "local_adaptation", "purkinje", "mesopic_colour", "acuity", "dithering")
+
+
+def only(*effects):
+    """BARE with some effects switched back on."""
+    return dataclasses.replace(BARE, **{e: True for e in effects})
+
+
+# Most tests render sequences of one shape, T frames of 32 x 32 at 8 frames
+# per second (a 1/8 s flash is one frame), with an explicit gaze path, so
+# that each configuration of the operator is compiled once for the file.
+T, H, W, FPS = 24, 32, 32, 8.0
+CENTRE = np.tile([(W - 1) / 2, (H - 1) / 2], (T, 1))
+
+
+def render(params, frames, gaze=CENTRE, dt=1 / FPS, key=KEY):
+    """``op.run`` on a standard-shape sequence."""
+    assert frames.shape[:3] == (T, H, W)
+    return op.run(params, frames, dt, gaze=gaze, key=key)
+
+
+def flash_frames(luminance=1e7):
+    """The flash scene: dark, one frame of ``luminance`` at 0.25 s, dark."""
+    scene = scenes.flash(width=W, height=H, duration=T / FPS, fps=FPS, luminance=luminance)
+    return jnp.asarray(scene.render(scene.times), jnp.float64)
+
+
+def sequence(image):
+    return jnp.broadcast_to(jnp.asarray(image, jnp.float64), (T, H, W, 3))
+
+
+def hue(rgb):
+    """HSV hue, degrees, of an RGB triple."""
+    return 360.0 * colorsys.rgb_to_hsv(*np.clip(np.asarray(rgb), 0, None))[0]
+
+
+def texture(seed=0):
+    """A coloured random texture of photopic luminance about 1 cd/m2."""
+    rng = np.random.default_rng(seed)
+    return jnp.asarray(rng.uniform(0.2, 1.8, size=(H, W, 3)))
+
+
+# -- published values ---------------------------------------------------------
+
+
+def test_defaults_are_appendix_a():
+    # Jacobs et al. (2015), Appendix A.
+    p = op.Params()
+    expected = dict(gamma=0.455, n=0.7, a1=0.75, a2=0.2, c1=1, c2=1, j1=0.03, j2=0.15)
+    for name, value in expected.items():
+        assert float(getattr(p, name)) == pytest.approx(value)
+    np.testing.assert_allclose(p.b1, [1.2e-3, 1.4e-4, 5.5e-7])
+    np.testing.assert_allclose(p.b2, [0.69, 1.4, 5.5])
+    assert (float(p.m1), float(p.m2), float(p.g), float(p.rho_step)) == (0, -2, 0.25, 0.286)
+    np.testing.assert_allclose(p.w_P, [0.2126, 0.7152, 0.0722], atol=1e-4)
+    np.testing.assert_allclose(p.w_S / p.w_S[1], np.array([0, 0.8451, 0.1459]) / 0.8451)
+    np.testing.assert_allclose(p.H, [[1.14, -1.18, 0.36], [-0.08, 1.02, 0.18], [0.30, -0.11, 1.25]])
+    np.testing.assert_allclose(op.acuity_sigmas(p), 0.75 * 2 ** (np.arange(8) / 4))
+    assert float(p.adaptation_floor) == 100.0  # §2.4
+
+
+def test_white_excites_the_three_cones_equally():
+    # Fig. 4: a white flash "stimulating all cone types equally".
+    np.testing.assert_allclose(color.RGB_TO_LMS @ np.ones(3), np.ones(3), rtol=1e-12)
+
+
+# -- global adaptation --------------------------------------------------------
+
+
+def test_sigma_puts_the_adapting_luminance_on_the_plateau():
+    # Eq 2 solves R(I) = M(I): the response to the adapting luminance is M.
+    p = op.Params()
+    A = jnp.linspace(-1.0, 9.0, 21)
+    I = 10.0**A
+    R = naka_rushton(I, op.semi_saturation(p, A), 1.0, p.n)
+    np.testing.assert_allclose(R, op.plateau(p, I), rtol=1e-10)
+    assert jnp.all(jnp.diff(op.plateau(p, I)) > 0) and float(op.plateau(p, I).max()) < 1
+
+
+def test_adaptation_follows_the_gaze_at_the_papers_rates():
+    # Left half at 1e4 cd/m2, right half at 10: fixating the right half holds
+    # A at the floor of 100 cd/m2 (§2.4); looking left raises it at a1 = 0.75
+    # log units/s (Eq 3); the frame darkens as the viewer adapts.
+    frame = jnp.ones((H, W, 3)).at[:, : W // 2].multiply(1e4).at[:, W // 2 :].multiply(10.0)
+    gaze = np.where(np.arange(T)[:, None] < 8, [24.0, 15.5], [7.5, 15.5])
+    params = dataclasses.replace(SMOOTH, pixels_per_degree=jnp.asarray(4.0))  # a 4 px fovea
+    out, diag = render(params, sequence(frame), gaze=gaze)
+    A = np.asarray(diag.A)
+    assert A[0] == pytest.approx(2.0, abs=1e-6)
+    np.testing.assert_allclose(np.diff(A[8:20]), 0.75 / FPS, rtol=1e-9)
+    assert np.asarray(diag.A_T)[-1] == pytest.approx(4.0, abs=0.01)
+    assert float(out[9, 15, 4].mean()) > float(out[-1, 15, 4].mean())  # darkens as it adapts
+
+
+def test_global_adaptation_off_keeps_the_initial_state():
+    frames = sequence(texture()) * jnp.geomspace(10.0, 1e5, T)[:, None, None, None]
+    out, diag = render(BARE, frames)
+    assert float(jnp.ptp(diag.A)) == 0.0
+    no_gaze, _ = op.run(BARE, frames, 1 / FPS)  # no gaze: fixation at the centre
+    assert jnp.array_equal(out, no_gaze)
+
+
+# -- afterimages --------------------------------------------------------------
+
+
+def _gaze_colour(luminance, times):
+    """Display values at the fixation ``times`` s after a flash ends."""
+    out, _ = render(SMOOTH, flash_frames(luminance))
+    end = 3  # the flash is frame 2, at 0.25 s
+    return [np.asarray(out[end + int(round(t * FPS)), 16, 16]) for t in times]
+
+
+def test_flash_afterimage_goes_from_cyan_to_magenta():
+    # §2.2: a bright neutral flash gives "a strong cyan afterimage, fading to
+    # green, and finally to magenta" (Weve 1925); Fig. 5's 1e7 cd/m2 line.
+    first, later, late = _gaze_colour(1e7, [0.0, 0.25, 2.5])
+    assert 150 <= hue(first) <= 200  # cyan
+    assert 90 <= hue(later) < 150  # green
+    assert 280 <= hue(late)  # magenta to pink
+    assert late[0] > late[1] and late[2] > late[1]
+
+
+def test_dim_flash_afterimage_starts_magenta():
+    # Fig. 5: below about 1e4.5 cd/m2 no cyan or green phase, only magenta.
+    (first,) = _gaze_colour(1e3, [0.0])
+    assert hue(first) >= 280 and first[0] > first[1]
+
+
+def test_bleaching_off_leaves_darkness_black():
+    frames = flash_frames()
+    for params in (BARE, only("local_adaptation")):
+        out, _ = render(params, frames)
+        assert float(out[3:].max()) == 0.0
+    out, _ = render(only("bleaching"), frames)
+    assert float(out[3:].max()) > 0.1
+
+
+def test_afterimages_move_with_the_gaze():
+    # A flash at the centre, then darkness while the gaze moves 6 pixels
+    # right and 3 down: the afterimage moves with it (retina-locked).
+    gaze = CENTRE.copy()
+    gaze[6:] += [6.0, 3.0]
+    out, diag = render(SMOOTH, flash_frames(), gaze=gaze)
+
+    def peak(image):
+        """Centroid of the afterimage's core (above 80 % of its maximum)."""
+        w = np.asarray(image).sum(-1)
+        w = np.maximum(w - 0.8 * w.max(), 0.0)
+        y, x = np.mgrid[: w.shape[0], : w.shape[1]]
+        return np.array([(w * x).sum(), (w * y).sum()]) / w.sum()
+
+    np.testing.assert_allclose(peak(out[5]), [15.5, 15.5], atol=0.3)
+    np.testing.assert_allclose(peak(out[7]), [21.5, 18.5], atol=0.3)
+    # the fixated point keeps its retina's bleaching through the saccade
+    assert float(diag.B_gaze[6, 0]) == pytest.approx(float(diag.B_gaze[5, 0]), rel=0.2)
+
+
+def _quadrants_after_saccade(scene, params):
+    """Mean display value of the four quadrants of the uniform field 0.1 s
+    after the saccade, away from the fixation cross: ``(2, 2, 3)``."""
+    frames = jnp.asarray(scene.render(scene.times), jnp.float64)
+    out, _ = op.run(params, frames, scene.dt[0], gaze=scene.gaze(scene.times), key=KEY)
+    k = np.searchsorted(scene.times, 5.0) + 1
+    field = np.asarray(out[k, :, frames.shape[2] // 2 :])
+    h, w = field.shape[:2]
+    rows = (slice(2, h // 2 - 3), slice(h // 2 + 3, h - 2))
+    cols = (slice(2, w // 2 - 3), slice(w // 2 + 3, w - 2))
+    return np.array([[field[r, c].mean((0, 1)) for c in cols] for r in rows])
+
+
+def test_checkerboard_leaves_a_reversed_afterimage_only_with_local_adaptation():
+    # Fig. 3 b-c: after fixating the board, the uniform field shows the board
+    # with its brightness relationships reversed.
+    scene = scenes.checkerboard(width=64, height=32, duration=5.5, fps=FPS, checks=2, field_deg=8)
+    q = _quadrants_after_saccade(scene, only("local_adaptation", "global_adaptation")).mean(-1)
+    assert q[0, 0] < 0.97 * q[0, 1] and q[1, 1] < 0.97 * q[1, 0]  # top-left check was white
+    q_off = _quadrants_after_saccade(scene, only("global_adaptation"))
+    assert float(np.ptp(q_off)) < 1e-12
+
+
+def test_coloured_patches_leave_opponent_afterimages():
+    # Fig. 3 d and §2.2.3: a blue stimulus lowers the S-cones' gain, so the
+    # grey field looks yellow where it was; red leaves cyan.
+    scene = scenes.patches(width=64, height=32, duration=5.5, fps=FPS, field_deg=8)
+    q = _quadrants_after_saccade(scene, only("local_adaptation", "global_adaptation"))
+    red, blue = q[0, 0], q[1, 0]  # top-left was red, bottom-left blue
+    assert blue[2] < 0.97 * min(blue[0], blue[1])  # yellow
+    assert red[0] < 0.97 * min(red[1], red[2])  # cyan
+
+
+def test_total_darkness_is_finite_and_black():
+    # I = 0 everywhere for a minute: C reaches C_max = c1 / c2 (to the last
+    # bit in float64) and Eq 11 is 0/0; our limit alpha = 1 keeps the output
+    # finite (and black). Light after the darkness is boosted but finite.
+    frames = jnp.zeros((T, H, W, 3)).at[-1].set(50.0)
+    for dtype in (jnp.float32, jnp.float64):
+        out, diag = render(SMOOTH, frames.astype(dtype), dt=dtype(2.5), gaze=CENTRE.astype(dtype))
+        assert float(diag.C_gaze[-2, 0]) == pytest.approx(1.0, abs=1e-7)
+        assert jnp.all(jnp.isfinite(out)) and float(out[:-1].max()) == 0.0
+        assert 0 < float(out[-1].mean()) <= 1
+
+
+def test_local_gain_is_eq_11_away_from_darkness():
+    p = op.Params(calcium_epsilon=0.0)
+    C, C_inf = jnp.array([0.2, 0.5, 0.9]), jnp.array([0.4, 0.5, 0.3])
+    np.testing.assert_allclose(op.local_gain(p, C, C_inf), (1 - C_inf) / (1 - C))
+    assert float(op.local_gain(op.Params(), 1.0, 1.0)) == 1.0
+
+
+def test_afterimages_fade_away_from_the_fovea():
+    p = op.Params()
+    v = op.falloff(p, (5, 400), jnp.array([0.0, 2.0]))
+    assert float(v[2, 0]) == 1.0
+    assert float(v[2, 320]) == pytest.approx(np.exp(-0.5), rel=1e-6)  # 5 deg at 64 px/deg
+
+
+# -- mesopic vision -----------------------------------------------------------
+
+
+def test_purkinje_darkens_red_and_brightens_blue_in_the_dark():
+    # Eq 13 and Fig. 10: in the dark, luminance moves towards the scotopic
+    # weights; a neutral pixel keeps its luminance; in daylight nothing moves.
+    colours = jnp.array([[1.0, 0.05, 0.05], [0.05, 0.05, 1.0], [1.0, 1.0, 1.0], [1, 1, 1]])
+    patches = jnp.repeat(jnp.repeat(colours[:, None], H, 1), W // 4, 0).transpose(1, 0, 2)
+    scale = jnp.where(jnp.arange(T) < T // 2, 1e-2, 1e3)[:, None, None, None]
+    frames = sequence(patches) * scale
+
+    def luminance(params):
+        out, _ = render(params, frames)
+        return np.asarray((out ** (1 / params.gamma)) @ params.w_P)[:, 16, 4 :: W // 4]
+
+    on, off = luminance(only("purkinje")), luminance(BARE)
+    dark, bright = slice(0, T // 2), slice(T // 2, T)
+    assert np.all(on[dark, 0] < 0.7 * off[dark, 0]) and np.all(on[dark, 1] > 1.3 * off[dark, 1])
+    np.testing.assert_allclose(on[bright], off[bright], rtol=1e-9)
+    np.testing.assert_allclose(on[:, 2], off[:, 2], rtol=1e-9)
+
+
+def test_mesopic_colour_turns_grey_dull_purple():
+    # §2.3.2: in the dark colour ratios drift to a dull purple (Shin et al.
+    # 2004); off, the output keeps the input's colour ratios.
+    out, _ = render(only("mesopic_colour"), sequence(jnp.full((H, W, 3), 1e-2)))
+    r, g, b = np.asarray(out[0, 4, 4]) ** (1 / float(BARE.gamma))
+    assert r > g and b > g and 270 <= hue((r, g, b)) <= 300
+    assert float(np.ptp([r, g, b]) / max(r, g, b)) < 0.4  # dull
+    out, _ = render(BARE, sequence(jnp.ones((H, W, 3)) * jnp.array([1.0, 0.5, 0.2]) * 1e-2))
+    linear = np.asarray(out[0, 4, 4]) ** (1 / float(BARE.gamma))
+    np.testing.assert_allclose(linear / linear[0], [1.0, 0.5, 0.2], rtol=1e-9)
+
+
+def _highpass_energy(image):
+    """Energy of the detail finer than 1 pixel, relative to the mean squared."""
+    chw = jnp.moveaxis(image, -1, 0)
+    return float(jnp.mean((chw - gaussian_blur(chw, 1.0)) ** 2) / jnp.mean(chw) ** 2)
+
+
+def test_acuity_loss_drops_fine_detail_first():
+    # §2.3.3 with the intended order: as luminance falls, the fine bands go
+    # first; averaged over noise draws, fine-detail energy falls with luminance.
+    p = op.Params()
+    image = texture()
+
+    @jax.jit
+    def loss(scene, key, t):
+        X = op.acuity_noise(p, key, t, (H, W))
+        return op.acuity_loss(p, scene, op.local_rho(p, scene), X)
+
+    levels = [1e-3, 1e-2, 3e-2, 1e-1, 3e-1, 1.0, 1e2]
+    energy = []
+    for L in levels:
+        kept = [_highpass_energy(loss(image * L, jax.random.key(i), 0.3 * i)) for i in range(8)]
+        energy.append(np.mean(kept))
+    assert np.all(np.diff(energy) > 0)
+    assert energy[-1] == pytest.approx(_highpass_energy(image), rel=1e-3)
+    # the coarsest band is kept down to rho = 0 and dropped below it
+    bands, lowpass = op.frequency_bands(p, image)
+    np.testing.assert_allclose(bands.sum(0) + lowpass, image, rtol=1e-12)
+    thresholds = np.asarray(op.acuity_thresholds(p))
+    assert thresholds[0] == pytest.approx(1.001) and thresholds[-1] == 0.0
+
+
+def test_acuity_noise_is_standard_normal_and_smooth():
+    p = op.Params()
+    noise = jax.jit(lambda key, t: op.acuity_noise(p, key, t, (64, 64)))
+    X = np.stack([noise(jax.random.key(i), jnp.float64(0.37 * i)) for i in range(400)])
+    assert abs(X.mean()) < 0.08 and abs(X.std() - 1) < 0.05
+    neighbours = np.corrcoef(X[:, :, :-1].ravel(), X[:, :, 1:].ravel())[0, 1]
+    assert neighbours > 0.9  # patches, not per-pixel noise
+
+
+def test_acuity_in_the_operator_flickers_in_the_dark_only():
+    dark = sequence(texture() * 1e-1)
+    a, _ = render(only("acuity"), dark, key=jax.random.key(1))
+    b, _ = render(only("acuity"), dark, key=jax.random.key(2))
+    assert float(jnp.abs(a - b).max()) > 1e-3
+    bright = sequence(texture() * 1e4)
+    c, _ = render(only("acuity"), bright, key=jax.random.key(1))
+    d, _ = render(BARE, bright)
+    np.testing.assert_allclose(c, d, rtol=1e-9)
+
+
+# -- display ------------------------------------------------------------------
+
+
+def test_dithering_is_unbiased_on_the_8_bit_grid():
+    J = jnp.full((64, 64, 3), 100.3 / 255)
+    q = display.dither(J, jax.random.key(3), 255)
+    assert jnp.all(q * 255 == jnp.round(q * 255))
+    assert set(np.unique(np.round(np.asarray(q) * 255))) == {100.0, 101.0}
+    assert float(q.mean() * 255) == pytest.approx(100.3, abs=0.02)
+
+
+def test_each_effect_off_leaves_the_frame_unchanged_by_it():
+    # With everything off, the frame is the bare tone curve of Eqs 1-2,
+    # computed here independently; switching any one effect on changes it,
+    # on a dark coloured texture with a flash (so that every effect has work).
+    frames = sequence(texture() * 3e-2).at[2:4, 12:20, 12:20].set(1e6)
+    bare, diag = render(BARE, frames)
+    I = 10.0 ** float(diag.A[0])
+    M = 0.8 * (I / 1e4) ** 0.25 / (1 + (I / 1e4) ** 0.25)
+    sigma = I * (1 / M - 1) ** (1 / 0.7)
+    L = np.asarray(frames) @ np.asarray(BARE.w_P)
+    R = L**0.7 / (L**0.7 + sigma**0.7)
+    expected = np.clip(np.asarray(frames) / L[..., None] * R[..., None], 0, 1) ** 0.455
+    np.testing.assert_allclose(bare, expected, rtol=1e-9)
+    for effect in EFFECTS:
+        out, _ = render(only(effect), frames)
+        assert float(jnp.abs(out - bare).max()) > 1e-3, effect
+
+
+# -- the contract -------------------------------------------------------------
+
+
+def test_same_key_same_frames():
+    frames = sequence(texture() * 0.1)
+    a, _ = render(op.Params(), frames, key=jax.random.key(7))
+    b, _ = render(op.Params(), frames, key=jax.random.key(7))
+    c, _ = render(op.Params(), frames, key=jax.random.key(8))
+    assert jnp.array_equal(a, b) and not jnp.array_equal(a, c)
+
+
+def test_run_equals_a_loop_of_step():
+    frames = flash_frames()
+    gaze = CENTRE.copy()
+    gaze[8:] += [4.0, -2.0]
+    gaze[10:12] = np.nan  # a blink
+    gaze[14:] = [100.0, -5.0]  # off the frame
+    params = op.Params()
+    out, diag = render(params, frames, gaze=gaze)
+    state = op.init(params, frames[0], gaze=gaze[0], key=KEY)
+    for k in range(T):
+        state, frame = op.step(params, state, frames[k], 1 / FPS, gaze=gaze[k])
+        np.testing.assert_allclose(frame, out[k], atol=1e-12)
+    np.testing.assert_allclose(state.B, diag.final_state.B, atol=1e-12)
+    np.testing.assert_allclose(diag.gaze[11], [19.5, 13.5])  # blink: held
+    np.testing.assert_allclose(diag.gaze[-1], [W - 1, 0.0])  # clipped to the frame
+
+
+def test_vmap_over_a_batch_of_params_equals_separate_runs():
+    frames = flash_frames()
+    j1 = jnp.array([0.0, 0.03, 0.1])
+    batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (3,) + jnp.shape(x)), SMOOTH)
+    batch = eqx.tree_at(lambda p: p.j1, batch, j1)
+    outs, _ = jax.vmap(lambda p: render(p, frames))(batch)
+    for i in range(3):
+        single, _ = render(eqx.tree_at(lambda p: p.j1, SMOOTH, j1[i]), frames)
+        np.testing.assert_allclose(outs[i], single, atol=1e-12)
+
+
+def test_no_retrace_for_new_values_or_more_frames(monkeypatch):
+    traces = []
+    original = op.tone_map
+
+    def counting(*args):
+        traces.append(1)
+        return original(*args)
+
+    monkeypatch.setattr(op, "tone_map", counting)
+    frames = jnp.ones((4, 9, 11, 3))  # a shape no other test uses
+    op.run(BARE, frames, 0.03)
+    n = len(traces)
+    op.run(BARE, frames * 5.0, np.float64(0.04), key=jax.random.key(5))
+    assert len(traces) == n
+    state = op.init(BARE, frames[0])
+    state, _ = op.step(BARE, state, frames[0], 0.03)
+    m = len(traces)
+    for k in range(1, 4):  # more frames, new values
+        state, _ = op.step(BARE, state, frames[k] * k, 0.01 * k, gaze=np.array([k, 2.0 * k]))
+    assert len(traces) == m
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_1e8_and_black_are_finite(dtype):
+    frames = (
+        jnp.zeros((T, H, W, 3))
+        .at[1]
+        .set(1e8)  # 1e8 cd/m2
+        .at[2, 10:20, 10:20]
+        .set(1e8)  # a sun in the dark
+        .at[4]
+        .set(1e-6)  # starlight
+        .astype(dtype)
+    )
+    out, diag = render(op.Params(), frames, dt=dtype(1 / FPS), gaze=CENTRE.astype(dtype))
+    assert out.dtype == dtype
+    assert jnp.all(jnp.isfinite(out)) and jnp.all((out >= 0) & (out <= 1))
+    for leaf in jax.tree.leaves(diag._replace(final_state=diag.final_state._replace(key=0))):
+        assert jnp.all(jnp.isfinite(leaf))
+    assert jnp.all((diag.final_state.B >= 0) & (diag.final_state.B <= 1))
+
+
+def test_float32_matches_float64():
+    frames = flash_frames()
+    out64, _ = render(SMOOTH, frames)
+    out32, _ = render(
+        SMOOTH, frames.astype(jnp.float32), dt=jnp.float32(1 / FPS), gaze=CENTRE.astype(jnp.float32)
+    )
+    np.testing.assert_allclose(out32, out64, atol=2e-4)
+
+
+# -- bad input ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("gaze", [np.zeros((T - 1, 2)), np.zeros(T), np.zeros((T, 3))])
+def test_wrong_gaze_shape_is_named(gaze):
+    with pytest.raises(ValueError, match=rf"gaze.*\({T}, 2\)"):
+        render(op.Params(), flash_frames(), gaze=gaze)
+
+
+@pytest.mark.parametrize("frames", [jnp.ones((4, 4, 3)), jnp.ones((2, 4, 4, 4))])
+def test_wrong_frames_are_named(frames):
+    with pytest.raises(ValueError, match="frames"):
+        op.run(op.Params(), frames, 0.03, key=KEY)
+
+
+@pytest.mark.parametrize("bad", [-1.0, np.nan, np.inf])
+def test_bad_luminance_is_named(bad):
+    with pytest.raises(Exception, match="frames"):
+        render(op.Params(), flash_frames().at[5, 1, 1, 1].set(bad))
+
+
+def test_bad_dt_and_missing_key_are_named():
+    with pytest.raises(Exception, match="dt"):
+        render(op.Params(), flash_frames(), dt=0.0)
+    with pytest.raises(ValueError, match="key"):
+        op.run(op.Params(), jnp.ones((2, 4, 4, 3)), 0.03)
+    with pytest.raises(ValueError, match="acuity_bands"):
+        op.Params(acuity_bands=0)
+
+
+def test_step_rejects_a_frame_of_another_shape():
+    state = op.init(BARE, jnp.ones((4, 4, 3)))
+    with pytest.raises(ValueError, match="frame"):
+        op.step(BARE, state, jnp.ones((4, 5, 3)), 0.03)
+
+
+# -- scenes and gaze files ----------------------------------------------------
+
+
+def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
+    path = tmp_path / "gaze.csv"
+    path.write_text("t,x,y\n0.0,10,20\n0.5,,\n1.0,30,40\n")
+    t, xy = scenes.read_gaze_csv(path)
+    np.testing.assert_allclose(t, [0.0, 0.5, 1.0])
+    assert np.isnan(xy[1]).all()
+    gaze = scenes.recorded_gaze(t, xy)(np.array([0.2, 0.7, 2.0]))
+    assert np.isnan(gaze[1]).all() and gaze[2].tolist() == [30.0, 40.0]
+    with pytest.raises(FileNotFoundError, match="gaze"):
+        scenes.read_gaze_csv(tmp_path / "missing.csv")
+    path.write_text("0.0,10\n")
+    with pytest.raises(ValueError, match="line 1"):
+        scenes.read_gaze_csv(path)
+    path.write_text("1.0,1,1\n0.5,2,2\n")
+    with pytest.raises(ValueError, match="increasing"):
+        scenes.read_gaze_csv(path)
+
+
+def test_jacobs_scenes_are_registered_and_calibrated():
+    for name in ("flash", "checkerboard", "patches", "mesopic"):
+        scene = scenes.SCENES[name](width=32, height=16, duration=0.5)
+        frames = np.asarray(scene.render(scene.times))
+        assert frames.shape == (len(scene.times), 16, 32, 3)
+        assert scene.gaze(scene.times).shape == (len(scene.times), 2)
+    flash = scenes.flash(width=16, height=16)
+    frames = np.asarray(flash.render(flash.times))
+    lit = frames.max(axis=(1, 2, 3)) > 0
+    assert frames.max() == 1e7 and lit.sum() / 30.0 == pytest.approx(0.125, abs=1 / 30)
+    white = scenes.colorchecker_rgb()[3, 0] @ np.array([0.2126, 0.7152, 0.0722])
+    mesopic = scenes.mesopic(width=60, height=40)
+    assert float(np.asarray(mesopic.render([0.0])).max()) <= 5.5e-2 * white * 1.01
