@@ -20,6 +20,7 @@ import numpy as np
 FORMATS = ("png", "mp4", "exr", "pfm")
 OPERATORS = (
     "pattanaik2000",
+    "jacobs2015",
     "schlick1994",
     "tumblin1999",
     "reinhard-devlin",
@@ -117,9 +118,25 @@ def build_parser():
         "--operator",
         choices=OPERATORS,
         default="pattanaik2000",
-        help="the operator: pattanaik2000 (time-dependent adaptation, the default) or a "
-        "static tone curve of the HDR-imaging chapter (schlick1994, tumblin1999, "
-        "reinhard-devlin, photographic, ward-jnd)",
+        help="the operator: pattanaik2000 (time-dependent adaptation, the default), "
+        "jacobs2015 (gaze-driven adaptation with afterimages, Purkinje shift, mesopic colour "
+        "and acuity loss; its frames are display-encoded and dithered, so --encoding does "
+        "not apply), or a static tone curve of the HDR-imaging chapter (schlick1994, "
+        "tumblin1999, reinhard-devlin, photographic, ward-jnd)",
+    )
+    render.add_argument(
+        "--gaze",
+        type=Path,
+        default=None,
+        metavar="CSV",
+        help="gaze recording: rows t,x,y (s, pixels; x,y empty or nan during a blink); "
+        "default: the scene's own path, the centre of the frame for files",
+    )
+    render.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the random draws (jacobs2015: acuity noise, dithering); default 0",
     )
     render.add_argument(
         "--background",
@@ -205,34 +222,43 @@ def _source(args):
 
 
 def _operator(args, source):
-    """The operator module, its parameters and the plot of its diagnostics."""
+    """The operator module, its parameters, the plot of its diagnostics and
+    whether its frames come display-encoded."""
     from functools import partial
 
     from jaxadapt import figures
 
+    ppd = args.pixels_per_degree or source.pixels_per_degree
     if args.operator == "pattanaik2000":
         from jaxadapt.operators import pattanaik2000 as op
 
         goal = args.adaptation_goal or source.goal
         params = op.Params(
             goal=goal,
-            pixels_per_degree=args.pixels_per_degree or source.pixels_per_degree,
+            pixels_per_degree=ppd,
             background=args.background,
             background_scale=args.background_scale,
         )
         where = "goal " + goal if args.background == "global" else args.background + " background"
         title = f"{source.name}: Pattanaik et al. 2000, {where}"
-        return op, params, partial(figures.plot_adaptation, title=title)
+        return op, params, partial(figures.plot_adaptation, title=title), False
+    if args.operator == "jacobs2015":
+        from jaxadapt.operators import jacobs2015 as op
+
+        title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
+        plot = partial(figures.plot_columns, title=title)
+        return op, op.Params(pixels_per_degree=ppd), plot, True
     from jaxadapt.operators import classic
 
     params = classic.Params(
         classic.TONE_CURVES[args.operator](), args.background, args.background_scale
     )
     title = f"{source.name}: {args.operator}, {args.background} background"
-    return classic, params, partial(figures.plot_columns, title=title)
+    return classic, params, partial(figures.plot_columns, title=title), False
 
 
 def render(args, console):
+    import jax
     from rich.progress import Progress
 
     from jaxadapt import display, figures, io, pipeline
@@ -241,8 +267,10 @@ def render(args, console):
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
-    op, params, plot = _operator(args, source)
-    encode = display.ENCODINGS[args.encoding]
+    if args.gaze is not None:
+        source = pipeline.with_gaze(source, args.gaze)
+    op, params, plot, encoded = _operator(args, source)
+    encode = (lambda J: J) if encoded else display.ENCODINGS[args.encoding]
 
     out = args.out
     try:
@@ -266,7 +294,8 @@ def render(args, console):
             )
             progress = stack.enter_context(Progress(console=console, transient=True))
             task = progress.add_task(f"rendering {source.name}", total=T)
-            for idx, linear, table in pipeline.chunks(op, params, source, args.chunk):
+            key = jax.random.key(args.seed)
+            for idx, linear, table in pipeline.chunks(op, params, source, args.chunk, key):
                 coded = display.to_uint8(encode(linear))
                 for k, i in enumerate(idx):
                     if "png" in formats:

@@ -62,18 +62,25 @@ def contact_sheet(frames, columns=4):
 
 
 def plot_columns(path, table, title):
-    """Every per-frame column of a diagnostics table against time, log scale.
+    """Every per-frame column of a diagnostics table against time, one panel each.
 
-    For operators whose diagnostics are not the 2000 operator's (the static
-    tone curves: the background luminance of each frame).
+    For operators whose diagnostics are not the 2000 operator's (the 2015
+    renderer's state at the gaze point, the static curves' background). A
+    positive column spanning more than two decades is drawn on a log scale.
     """
     t = table["t"]
     columns = [name for name, column in table.items() if name != "t" and column.ndim == 1]
-    fig = Figure(figsize=(6, 4))
-    ax = fig.subplots()
-    for name in columns:
-        ax.semilogy(t, np.maximum(table[name], 1e-12), label=name)
-    ax.set(xlabel="time (s)", ylabel="cd/m$^2$", title=title)
-    ax.legend()
+    ncols = min(4, len(columns))
+    nrows = -(-len(columns) // ncols)
+    fig = Figure(figsize=(3.6 * ncols, 2.6 * nrows + 0.5))
+    axes = np.atleast_1d(fig.subplots(nrows, ncols)).ravel()
+    for ax, name in zip(axes, columns, strict=False):
+        column = table[name]
+        wide = np.all(column > 0) and column.max() > 100 * column.min()
+        ax.plot(t, column)
+        ax.set(xlabel="time (s)", title=name, yscale="log" if wide else "linear")
+    for ax in axes[len(columns) :]:
+        ax.set_axis_off()
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

@@ -129,7 +129,7 @@ def from_files(paths, fps, multiplier=1.0):
     )
 
 
-def chunks(op, params, source, size=32):
+def chunks(op, params, source, size=32, key=None):
     """Run operator module ``op`` over ``source``, ``size`` frames per call.
 
     Parameters
@@ -142,29 +142,40 @@ def chunks(op, params, source, size=32):
     size : int
         Frames per call. Every chunk but the last has this length, so the
         operator compiles at most twice.
+    key : PRNG key, optional
+        Key of the sequence, for the stochastic operators.
 
     Yields
     ------
     (numpy array, numpy array, dict)
-        Frame indices ``(n,)``, display frames ``(n, H, W, 3)`` (linear,
-        in [0, 1]) and the chunk's diagnostics as columns of length ``n``.
+        Frame indices ``(n,)``, display frames ``(n, H, W, 3)`` in [0, 1]
+        and the chunk's diagnostics as columns of length ``n``.
     """
     if size < 1:
         raise ValueError(f"size: expected a positive number of frames, got {size}")
     T = len(source.times)
-    state = (
-        None if source.adaptation is None else op.init(params, None, adaptation=source.adaptation)
-    )
+    state = None
     for start in range(0, T, size):
         idx = np.arange(start, min(start + size, T))
-        out, diag = op.run(
-            params,
-            jnp.asarray(source.frames(idx)),
-            jnp.asarray(source.dt[idx], jnp.float32),
-            gaze=jnp.asarray(source.gaze(idx), jnp.float32),
-            state=state,
-        )
+        frames = jnp.asarray(source.frames(idx))
+        gaze = jnp.asarray(source.gaze(idx), jnp.float32)
+        if state is None:
+            state = op.init(params, frames[0], gaze=gaze[0], key=key, adaptation=source.adaptation)
+        dt = jnp.asarray(source.dt[idx], jnp.float32)
+        out, diag = op.run(params, frames, dt, gaze=gaze, state=state)
         state = diag.final_state
         table = op.diagnostics_table(diag)
         table["t"] = source.times[idx]
         yield idx, np.asarray(out), table
+
+
+def with_gaze(source, path):
+    """``source`` with its gaze from a recording: a CSV of ``t, x, y`` rows.
+
+    See :func:`jaxadapt.scenes.read_gaze_csv` (samples held until the next;
+    NaN samples are blinks).
+    """
+    from jaxadapt.scenes import read_gaze_csv, recorded_gaze
+
+    gaze = recorded_gaze(*read_gaze_csv(path))
+    return source._replace(gaze=lambda idx: gaze(source.times[idx]))

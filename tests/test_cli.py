@@ -167,3 +167,37 @@ def test_operators_and_backgrounds(tmp_path, capsys, operator, background):
     rows = list(csv.DictReader(open(out / "diagnostics.csv")))
     assert len(rows) == 6
     assert ("background" in rows[0]) == (operator != "pattanaik2000")
+
+
+def test_jacobs2015_follows_a_recorded_gaze(tmp_path, capsys):
+    gaze = tmp_path / "gaze.csv"
+    gaze.write_text("t,x,y\n0,5,4\n0.1,nan,nan\n0.15,25,12\n")
+    out = tmp_path / "out"
+    args = ["render", "--operator", "jacobs2015", "--scene", "checkerboard", "--size", "32x18"]
+    status, err = _run(
+        capsys, *args, "--duration", "0.2", "--gaze", str(gaze), "--seed", "3", "--out", str(out)
+    )
+    assert status == 0, err
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    xs = [float(r["gaze_x"]) for r in rows]
+    assert xs[0] == 5 and xs[3] == 5 and xs[5] == 25  # the blink holds the fixation
+    assert {"B_L", "C_S", "A"} <= set(rows[0])
+
+
+def test_bad_gaze_file_is_named(tmp_path, capsys):
+    gaze = tmp_path / "gaze.csv"
+    gaze.write_text("t,x,y\n0,5\n")
+    status, err = _run(
+        capsys,
+        "render",
+        "--operator",
+        "jacobs2015",
+        "--scene",
+        "flash",
+        *SMALL,
+        "--gaze",
+        str(gaze),
+        "--out",
+        str(tmp_path / "o"),
+    )
+    _assert_one_line_error(status, err, "gaze.csv")

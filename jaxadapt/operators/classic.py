@@ -464,7 +464,7 @@ class Diagnostics(NamedTuple):
     final_state: None = None
 
 
-def init(params, first_frame, *, gaze=None, adaptation=None):
+def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     """No state: the curves are static. Returns None."""
     return None
 

@@ -700,10 +700,13 @@ def _frame(params, state, frame, dt, sample):
     return advanced, J, record
 
 
-def _initial_state(params, frame, gaze, key):
+def _initial_state(params, frame, gaze, key, adaptation=None):
     shape = frame.shape[:2]
     gaze = fixation(gaze, _centre(shape, frame.dtype), shape)
-    A = adaptation_target(params, frame, gaze)
+    if adaptation is None:
+        A = adaptation_target(params, frame, gaze)
+    else:
+        A = jnp.log10(jnp.maximum(adaptation, params.adaptation_floor)).astype(frame.dtype)
     rec = receptors(params, frame, semi_saturation(params, A))
     zero = jnp.zeros((), frame.dtype)
     return State(A, rec.B_inf, rec.C_inf, gaze, zero, jnp.zeros((), jnp.int32), key)
@@ -712,7 +715,7 @@ def _initial_state(params, frame, gaze, key):
 # -- the contract -------------------------------------------------------------
 
 
-def init(params, first_frame, *, gaze=None, key=None):
+def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     """State of a viewer fully adapted to ``first_frame`` while fixating ``gaze``.
 
     ``A`` is the frame's target, ``B`` and ``C`` their equilibria (Eqs 6
@@ -728,6 +731,11 @@ def init(params, first_frame, *, gaze=None, key=None):
         frame; NaN also means the centre).
     key : PRNG key, optional
         Key of the sequence; required when the acuity loss or dithering is on.
+    adaptation : float, optional
+        Global adaptation luminance (cd/m2) to start from instead of the
+        frame's target, e.g. a dark-adapted viewer; floored at
+        ``adaptation_floor`` like every target. The retinal maps still start
+        at equilibrium with the frame.
 
     Returns
     -------
@@ -735,14 +743,31 @@ def init(params, first_frame, *, gaze=None, key=None):
     """
     first_frame = jnp.asarray(first_frame)
     gaze = _default_gaze(gaze, first_frame, rank=3)
-    return _init(params, first_frame, gaze, _check_key(params, key))
+    return _init(params, first_frame, gaze, _check_key(params, key), adaptation)
 
 
 @eqx.filter_jit
-def _init(params, first_frame, gaze, key):
+def _init(params, first_frame, gaze, key, adaptation):
     first_frame = check_frames(first_frame, 3, "first_frame")
     params = as_dtype(params, first_frame.dtype)
-    return _initial_state(params, first_frame, gaze, key)
+    return _initial_state(params, first_frame, gaze, key, adaptation)
+
+
+def diagnostics_table(diag):
+    """Per-frame columns of a :class:`Diagnostics`, as numpy arrays.
+
+    ``t``; ``A`` and ``A_T`` (log10 cd/m2); ``sigma`` (cd/m2); the fixation
+    ``gaze_x``, ``gaze_y`` (pixels); L, M, S bleaching ``B_L`` ... and
+    calcium ``C_L`` ... at the fixation; and ``rho`` there.
+    """
+    columns = {"t": diag.t, "A": diag.A, "A_T": diag.A_T, "sigma": diag.sigma}
+    columns |= {"gaze_x": diag.gaze[:, 0], "gaze_y": diag.gaze[:, 1]}
+    for i, cone in enumerate("LMS"):
+        columns[f"B_{cone}"] = diag.B_gaze[:, i]
+    for i, cone in enumerate("LMS"):
+        columns[f"C_{cone}"] = diag.C_gaze[:, i]
+    columns["rho"] = diag.rho_gaze
+    return {name: np.asarray(column) for name, column in columns.items()}
 
 
 def step(params, state, frame, dt, *, gaze=None, key=None):

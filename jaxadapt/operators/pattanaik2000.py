@@ -435,7 +435,7 @@ def _centre(frame):
 
 
 @eqx.filter_jit
-def init(params, first_frame, *, gaze=None, adaptation=None):
+def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     """State of a viewer fully adapted before the sequence starts.
 
     Parameters
@@ -446,6 +446,8 @@ def init(params, first_frame, *, gaze=None, adaptation=None):
     gaze : array, shape (2,), optional
         Gaze point ``(x, y)`` in pixels, for the ``"foveal"`` goal (default:
         the centre).
+    key : ignored
+        The operator is deterministic.
     adaptation : float, optional
         Adapt instead to this luminance (cd/m2) for rods and cones, e.g.
         0.01 for the moonlit start of the title-page sequence. With a local

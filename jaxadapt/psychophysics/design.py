@@ -1,0 +1,343 @@
+"""The method of constant stimuli as data, and the 2015 paper's two protocols.
+
+A :class:`Protocol` says what is shown (a standard and a set of test
+luminances, in cd/m2), under which conditions (control, manipulated), how
+often, in which blocks, and who is excluded (a minimum fraction correct in the
+training trials). :func:`trial_list` turns it into the trial-by-trial
+sequence one participant sees: randomised within each block, with the
+standard/test order counter-balanced, the same for the same PRNG key, and
+``vmap``-able over keys (one sequence per simulated observer). Responses to
+those trials are scored by :func:`training_accuracy` and :func:`excluded` and
+counted per condition and level by :func:`counts`, which gives the arrays
+:func:`jaxadapt.psychophysics.fit.fit` takes.
+
+Levels are log10 units relative to the standard, ``log10(test / standard)``,
+and a response is 1 when the test was judged brighter.
+
+References
+----------
+Jacobs, Gallo, Cooper, Pulli, Levoy (2015), *Simulating the Visual Experience
+of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1.1 and §4.2.1
+(``shared/seeds/004_*.txt``).
+"""
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class Block(eqx.Module):
+    """A block of trials, shown in a random order.
+
+    Attributes
+    ----------
+    name : str
+        Label, e.g. ``"training"``.
+    repetitions : tuple of (str, int)
+        ``(condition, n)``: each selected test level is paired with the
+        standard ``n`` times under that condition.
+    levels : tuple of int, optional
+        Indices of the protocol's tests used in this block (default: all).
+    training : bool, optional
+        Training trials: scored for exclusion, not analysed. Their levels must
+        differ from the standard, so that every answer is right or wrong.
+    """
+
+    name: str
+    repetitions: tuple[tuple[str, int], ...]
+    levels: tuple[int, ...] | None = None
+    training: bool = False
+
+
+class Protocol(eqx.Module):
+    """A method-of-constant-stimuli experiment.
+
+    Attributes
+    ----------
+    name : str
+    standard : float
+        Luminance of the standard, cd/m2.
+    tests : tuple of float
+        Luminances of the tests, cd/m2.
+    blocks : tuple of Block
+        In presentation order.
+    conditions : tuple of str, optional
+        Condition names; responses are counted in this order.
+    exclusion : float, optional
+        Participants who answer fewer than this fraction of the training
+        trials correctly are excluded (the paper's 70%).
+    presentation_s, blank_s : float, optional
+        Each image is shown for ``presentation_s`` seconds, then a black
+        screen for ``blank_s`` seconds.
+    dark_adaptation_s : float, optional
+        Time in complete darkness before the first trial, s.
+    ambient : float, optional
+        Luminance of the room with the black screen shown, cd/m2.
+    """
+
+    name: str
+    standard: float
+    tests: tuple[float, ...]
+    blocks: tuple[Block, ...]
+    conditions: tuple[str, ...] = ("control", "manipulated")
+    exclusion: float = 0.7
+    presentation_s: float = 0.05
+    blank_s: float = 2.5
+    dark_adaptation_s: float = 0.0
+    ambient: float = 1.8e-4
+
+    def __check_init__(self):
+        if not self.standard > 0 or not self.tests or min(self.tests) <= 0:
+            raise ValueError(
+                f"standard, tests: expected positive luminances in cd/m2, "
+                f"got {self.standard!r} and {self.tests!r}"
+            )
+        if not 0 < self.exclusion <= 1:
+            raise ValueError(f"exclusion: expected a fraction in (0, 1], got {self.exclusion!r}")
+        if not self.blocks:
+            raise ValueError("blocks: expected at least one block, got none")
+        for block in self.blocks:
+            _check_block(self, block)
+
+    @property
+    def levels(self):
+        """Test levels, log10 units relative to the standard, shape ``(L,)``."""
+        return np.log10(np.asarray(self.tests) / self.standard)
+
+    @property
+    def n_trials(self):
+        """Number of trials, training included."""
+        return len(_schedule(self)[0])
+
+
+def _check_block(protocol, block):
+    where = f"blocks[{block.name!r}]"
+    for condition, n in block.repetitions:
+        if condition not in protocol.conditions:
+            raise ValueError(
+                f"{where}.repetitions: expected conditions from {protocol.conditions}, "
+                f"got {condition!r}"
+            )
+        if not isinstance(n, int) or n < 0:
+            raise ValueError(f"{where}.repetitions: expected counts >= 0, got {n!r}")
+    indices = range(len(protocol.tests)) if block.levels is None else block.levels
+    if any(not 0 <= i < len(protocol.tests) for i in indices):
+        raise ValueError(
+            f"{where}.levels: expected indices into {len(protocol.tests)} tests, "
+            f"got {block.levels!r}"
+        )
+    if block.training and any(protocol.tests[i] == protocol.standard for i in indices):
+        raise ValueError(
+            f"{where}.levels: training trials need tests that differ from the standard "
+            f"({protocol.standard} cd/m2), got {[protocol.tests[i] for i in indices]}"
+        )
+
+
+#: Training, control block, main block: §4.1.1. The 20 training trials
+#: compare "pairs of un-manipulated images with large brightness
+#: differences"; which ones is not said, so the two extreme tests are used,
+#: 10 times each.
+_PAPER_BLOCKS = (
+    Block("training", (("control", 10),), levels=(0, 4), training=True),
+    Block("control", (("control", 20),)),
+    Block("main", (("manipulated", 30), ("control", 10))),
+)
+
+#: §4.1.1: the camera-flash scene at 27 cd/m2, tests 14-49 cd/m2, each image
+#: shown for 50 ms followed by 2.5 s of black on which afterimages appear (weak
+#: synthetic afterimage in control trials, 2.2e-2 cd/m2 and j1 = 0.0003; strong
+#: in manipulated ones, 6.5e-2 cd/m2 and j1 = 0.001), in a dark room
+#: (1.8e-4 cd/m2).
+AFTERIMAGE = Protocol(
+    name="afterimage",
+    standard=27.0,
+    tests=(14.0, 19.0, 27.0, 35.0, 49.0),
+    blocks=_PAPER_BLOCKS,
+    presentation_s=0.05,
+    blank_s=2.5,
+)
+
+#: §4.2.1: the colour checker at 5.5e-2 cd/m2 on its white tile, tests
+#: 4.1e-2-7.5e-2 cd/m2, shown for 1.25 s followed by 0.75 s of black, after
+#: five minutes in complete darkness; manipulated tests are rendered with the
+#: mesopic colour and acuity effects (§2.3.2-2.3.3). "The rest of the
+#: experimental procedure was identical to that of the afterimage experiment."
+MESOPIC = Protocol(
+    name="mesopic",
+    standard=5.5e-2,
+    tests=(4.1e-2, 4.8e-2, 5.5e-2, 6.8e-2, 7.5e-2),
+    blocks=_PAPER_BLOCKS,
+    presentation_s=1.25,
+    blank_s=0.75,
+    dark_adaptation_s=300.0,
+)
+
+#: The presets by name (``--protocol afterimage|mesopic``).
+PROTOCOLS = {p.name: p for p in (AFTERIMAGE, MESOPIC)}
+
+
+class Trials(NamedTuple):
+    """A trial sequence, one entry per trial in presentation order (leading
+    axes: one sequence per key when ``vmap``-ped).
+
+    Attributes
+    ----------
+    block : array of int
+        Index into ``protocol.blocks``.
+    condition : array of int
+        Index into ``protocol.conditions``.
+    level_index : array of int
+        Index into ``protocol.tests``.
+    level : array of float
+        ``log10(test / standard)``.
+    luminance : array of float
+        Test luminance, cd/m2.
+    test_first : array of bool
+        Whether the test is shown before the standard.
+    training : array of bool
+        Training trial (scored for exclusion, not analysed).
+    """
+
+    block: jax.Array
+    condition: jax.Array
+    level_index: jax.Array
+    level: jax.Array
+    luminance: jax.Array
+    test_first: jax.Array
+    training: jax.Array
+
+
+def _schedule(protocol):
+    """The trials before randomisation, as NumPy columns ``(block, condition,
+    level_index, repetition, repetitions)``, block after block."""
+    rows = []
+    for b, block in enumerate(protocol.blocks):
+        indices = range(len(protocol.tests)) if block.levels is None else block.levels
+        c_of = protocol.conditions.index
+        rows += [
+            (b, c_of(condition), i, r, n)
+            for condition, n in block.repetitions
+            for i in indices
+            for r in range(n)
+        ]
+    return tuple(np.asarray(column, dtype=np.int32) for column in zip(*rows, strict=True))
+
+
+@eqx.filter_jit
+def _trial_list(protocol, key):
+    block, condition, level_index, repetition, repetitions = (
+        jnp.asarray(c) for c in _schedule(protocol)
+    )
+    order_key, coin_key = jax.random.split(key)
+    # A uniform permutation, then a stable sort by block: random within blocks.
+    perm = jax.random.permutation(order_key, block.shape[0])
+    order = perm[jnp.argsort(block[perm], stable=True)]
+    # Alternate the order within each cell; an odd cell's last trial is a coin toss.
+    last_odd = (repetition == repetitions - 1) & (repetitions % 2 == 1)
+    coin = jax.random.bernoulli(coin_key, 0.5, block.shape)
+    test_first = jnp.where(last_odd, coin, repetition % 2 == 0)
+    levels = jnp.asarray(protocol.levels, dtype=jnp.result_type(float))
+    tests = jnp.asarray(protocol.tests, dtype=levels.dtype)
+    training = jnp.asarray([b.training for b in protocol.blocks])[block]
+    trials = Trials(
+        block, condition, level_index, levels[level_index], tests[level_index], test_first, training
+    )
+    return jax.tree.map(lambda column: column[order], trials)
+
+
+def trial_list(protocol, key):
+    """The sequence of trials one participant sees.
+
+    Parameters
+    ----------
+    protocol : Protocol
+    key : PRNG key
+        Same key, same sequence.
+
+    Returns
+    -------
+    Trials
+        Columns of length ``protocol.n_trials``: blocks in order, trials in a
+        uniformly random order within each block; within each block,
+        condition and level, half of the repetitions show the test first
+        (an odd count's extra trial is decided by a coin toss).
+
+    Examples
+    --------
+    >>> trials = trial_list(AFTERIMAGE, jax.random.key(0))
+    >>> trials.level.shape, int(trials.training.sum()), int(trials.test_first.sum())
+    ((320,), 20, 160)
+    >>> keys = jax.random.split(jax.random.key(0), 8)
+    >>> jax.vmap(lambda k: trial_list(AFTERIMAGE, k))(keys).level.shape
+    (8, 320)
+    """
+    return _trial_list(protocol, key)
+
+
+def training_accuracy(trials, responses):
+    """Fraction of training trials answered correctly.
+
+    Parameters
+    ----------
+    trials : Trials
+    responses : array, shape (..., n_trials)
+        1 when the test was judged brighter; leading axes are observers.
+
+    Returns
+    -------
+    array, shape (...)
+        Correct means judging the brighter image brighter: ``response == 1``
+        exactly when the test is brighter than the standard (``level > 0``).
+    """
+    correct = (responses > 0.5) == (trials.level > 0)
+    weight = trials.training.astype(jnp.result_type(float))
+    return jnp.sum(correct * weight, axis=-1) / jnp.maximum(jnp.sum(weight, axis=-1), 1.0)
+
+
+def excluded(protocol, trials, responses):
+    """Whether a participant is excluded: fewer than ``protocol.exclusion`` of
+    the training trials correct (§4.1.1: "less than 70% of the time").
+
+    Examples
+    --------
+    >>> trials = trial_list(AFTERIMAGE, jax.random.key(0))
+    >>> bool(excluded(AFTERIMAGE, trials, (trials.level > 0).astype(float)))
+    False
+    """
+    return training_accuracy(trials, responses) < protocol.exclusion
+
+
+def counts(protocol, trials, responses):
+    """Responses counted per condition and level, training trials left out.
+
+    Parameters
+    ----------
+    protocol : Protocol
+    trials : Trials
+    responses : array, shape (..., n_trials)
+        1 when the test was judged brighter.
+
+    Returns
+    -------
+    (array, array)
+        ``n_yes`` and ``n_total``, shape ``(..., n_conditions, n_levels)``,
+        ready for :func:`jaxadapt.psychophysics.fit.fit` with
+        ``protocol.levels``.
+
+    Examples
+    --------
+    >>> trials = trial_list(AFTERIMAGE, jax.random.key(0))
+    >>> n_yes, n_total = counts(AFTERIMAGE, trials, jnp.ones(320))
+    >>> n_total.tolist()
+    [[30.0, 30.0, 30.0, 30.0, 30.0], [30.0, 30.0, 30.0, 30.0, 30.0]]
+    """
+    shape = (len(protocol.conditions), len(protocol.tests))
+    cell = trials.condition * shape[1] + trials.level_index
+    onehot = jax.nn.one_hot(cell, shape[0] * shape[1]) * ~trials.training[..., None]
+    responses = jnp.asarray(responses, dtype=onehot.dtype)
+    n_yes = jnp.einsum("...t,...tc->...c", responses, onehot)
+    n_total = jnp.broadcast_to(jnp.sum(onehot, axis=-2), n_yes.shape)
+    return n_yes.reshape(n_yes.shape[:-1] + shape), n_total.reshape(n_yes.shape[:-1] + shape)

@@ -1,0 +1,383 @@
+"""Trial tables in, fit tables out: the files of ``jaxadapt psychometric``.
+
+A trial table is a CSV file with a header row and either one row per trial,
+
+    participant,condition,level,response
+    p01,control,-0.285,0
+    p01,control,0.259,1
+
+or one row per level with counts,
+
+    participant,condition,level,n_yes,n_total
+    p01,control,-0.285,3,30
+
+``level`` is log10 units relative to the standard and ``response`` is 1 when
+the test was judged brighter. ``participant`` and ``condition`` may be left
+out (one group, named ``"all"``). :func:`read_trials` reads and validates
+such a file, :func:`group_trials` gathers the counts of each (participant,
+condition) into padded arrays for the vmapped fit, :func:`fit_groups` fits
+them all in one call, and :func:`write_fits` writes ``fits.csv``.
+
+Every problem in the input raises ``ValueError`` with a message that names the
+file and the row (rows are counted as a spreadsheet shows them, the header
+being row 1) or the column.
+"""
+
+import csv
+import os
+import tempfile
+from pathlib import Path
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import ndtri
+
+from jaxadapt.psychophysics import fit as psyfit
+
+#: Columns of a trial table with one row per trial.
+TRIAL_COLUMNS = ("participant", "condition", "level", "response")
+#: Columns of a trial table with counts.
+COUNT_COLUMNS = ("participant", "condition", "level", "n_yes", "n_total")
+#: Group columns that may be left out.
+OPTIONAL_COLUMNS = ("participant", "condition")
+#: Columns of ``fits.csv``.
+FIT_COLUMNS = (
+    "participant",
+    "condition",
+    "pse",
+    "sigma",
+    "b0",
+    "b1",
+    "se_pse",
+    "ci_low",
+    "ci_high",
+    "loglik",
+    "converged",
+    "flags",
+)
+
+
+class TrialTable(NamedTuple):
+    """The rows of a trial table, as counts (a trial is a count of 1).
+
+    Attributes
+    ----------
+    participant, condition : numpy array of str
+    level : numpy array of float
+        log10 units relative to the standard.
+    n_yes, n_total : numpy array of float
+        "Test brighter" responses and trials.
+    row : numpy array of int
+        Row of the file (header = 1), for messages.
+    """
+
+    participant: np.ndarray
+    condition: np.ndarray
+    level: np.ndarray
+    n_yes: np.ndarray
+    n_total: np.ndarray
+    row: np.ndarray
+
+
+class Groups(NamedTuple):
+    """Counts per (participant, condition), padded to a common number of
+    levels; padding has ``n_total = 0``, which the fit ignores.
+
+    Attributes
+    ----------
+    participant, condition : tuple of str, length G
+        In order of first appearance in the file.
+    levels, n_yes, n_total : numpy array, shape (G, L)
+        Distinct levels of each group in increasing order, and their counts.
+    """
+
+    participant: tuple
+    condition: tuple
+    levels: np.ndarray
+    n_yes: np.ndarray
+    n_total: np.ndarray
+
+
+class FitTable(NamedTuple):
+    """One row per group; the fields are the columns of ``fits.csv``
+    (``FIT_COLUMNS``). ``ci_low, ci_high`` bound the PSE; ``flags`` are the
+    integer flags of :mod:`jaxadapt.psychophysics.fit`."""
+
+    participant: tuple
+    condition: tuple
+    pse: np.ndarray
+    sigma: np.ndarray
+    b0: np.ndarray
+    b1: np.ndarray
+    se_pse: np.ndarray
+    ci_low: np.ndarray
+    ci_high: np.ndarray
+    loglik: np.ndarray
+    converged: np.ndarray
+    flags: np.ndarray
+
+
+# -- reading ------------------------------------------------------------------
+
+
+def _header(path, header):
+    """Index of each used column; which table format the header announces."""
+    columns = [name.strip().lower() for name in header]
+    if "response" in columns and "n_yes" in columns:
+        raise ValueError(
+            f"{path}: expected either a 'response' column or 'n_yes' and 'n_total' "
+            f"columns, got both"
+        )
+    required = TRIAL_COLUMNS if "response" in columns or "n_yes" not in columns else COUNT_COLUMNS
+    missing = [c for c in required if c not in columns and c not in OPTIONAL_COLUMNS]
+    if missing:
+        raise ValueError(
+            f"{path}: missing column '{missing[0]}' (expected the columns "
+            f"{', '.join(TRIAL_COLUMNS)} or {', '.join(COUNT_COLUMNS)}; got {', '.join(columns)})"
+        )
+    return {c: columns.index(c) for c in required if c in columns}
+
+
+def _fail(path, rows, bad, column, expected, values):
+    i = int(np.argmax(bad))
+    raise ValueError(
+        f"{path}, row {rows[i]}: column '{column}': expected {expected}, got {values[i]!r}"
+    )
+
+
+def _numbers(path, rows, column, values):
+    """A column as floats; the first non-numeric or non-finite cell is named."""
+    try:
+        numbers = np.array(values, dtype=float)
+    except ValueError:
+        bad = []
+        for value in values:
+            try:
+                float(value)
+                bad.append(False)
+            except ValueError:
+                bad.append(True)
+        _fail(path, rows, np.array(bad), column, "a number", values)
+    if not np.all(np.isfinite(numbers)):
+        _fail(path, rows, ~np.isfinite(numbers), column, "a finite number", values)
+    return numbers
+
+
+def _names(path, rows, column, values):
+    names = np.array([v.strip() for v in values], dtype=object)
+    if np.any(names == ""):
+        _fail(path, rows, names == "", column, "a non-empty name", list(values))
+    return names
+
+
+def read_trials(path):
+    """Read and validate a trial table.
+
+    Parameters
+    ----------
+    path : str or Path
+        CSV file, UTF-8, with a header row (see the module notes).
+
+    Returns
+    -------
+    TrialTable
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        Empty file, missing columns, rows with the wrong number of cells,
+        blank names, non-numeric or non-finite numbers, responses other than
+        0 or 1, negative or fractional counts, ``n_yes > n_total``; the
+        message names the file, the row and the column.
+    """
+    with open(path, newline="", encoding="utf-8-sig") as file:
+        reader = csv.reader(file)
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"{path}: expected a header row, got an empty file")
+        index = _header(path, header)
+        cells, rows = [], []
+        for cells_of_row in reader:
+            if not any(c.strip() for c in cells_of_row):
+                continue
+            if len(cells_of_row) != len(header):
+                raise ValueError(
+                    f"{path}, row {reader.line_num}: expected {len(header)} cells, "
+                    f"got {len(cells_of_row)}"
+                )
+            cells.append(cells_of_row)
+            rows.append(reader.line_num)
+    if not cells:
+        raise ValueError(f"{path}: expected at least one data row, got none")
+    column = {name: [c[i] for c in cells] for name, i in index.items()}
+    rows = np.array(rows)
+    names = {
+        name: _names(path, rows, name, column[name])
+        if name in column
+        else np.full(len(rows), "all", dtype=object)
+        for name in OPTIONAL_COLUMNS
+    }
+    level = _numbers(path, rows, "level", column["level"])
+    if "response" in column:
+        n_yes = _numbers(path, rows, "response", column["response"])
+        bad = (n_yes != 0) & (n_yes != 1)
+        if np.any(bad):
+            _fail(path, rows, bad, "response", "0 or 1", column["response"])
+        n_total = np.ones_like(n_yes)
+    else:
+        n_yes, n_total = (_numbers(path, rows, c, column[c]) for c in ("n_yes", "n_total"))
+        for name, counts in (("n_yes", n_yes), ("n_total", n_total)):
+            bad = (counts < 0) | (counts != np.round(counts))
+            if np.any(bad):
+                _fail(path, rows, bad, name, "a whole number >= 0", column[name])
+        if np.any(n_yes > n_total):
+            i = int(np.argmax(n_yes > n_total))
+            raise ValueError(
+                f"{path}, row {rows[i]}: column 'n_yes': expected at most n_total = "
+                f"{column['n_total'][i]}, got {column['n_yes'][i]!r}"
+            )
+    return TrialTable(names["participant"], names["condition"], level, n_yes, n_total, rows)
+
+
+# -- grouping -----------------------------------------------------------------
+
+
+def group_trials(table, path="trials"):
+    """Counts per (participant, condition) and level, as padded arrays.
+
+    Parameters
+    ----------
+    table : TrialTable
+    path : str, optional
+        Name of the source, for messages.
+
+    Returns
+    -------
+    Groups
+
+    Raises
+    ------
+    ValueError
+        A group without trials (its ``n_total`` sum to 0), naming its first
+        row.
+    """
+    first = {}
+    keys = zip(table.participant, table.condition, strict=True)
+    group = np.array([first.setdefault(key, i) for i, key in enumerate(keys)])
+    starts = np.array(sorted(set(first.values())))
+    group = np.searchsorted(starts, group)  # 0..G-1 in order of first appearance
+    order = np.lexsort((table.level, group))
+    g, x = group[order], table.level[order]
+    new_cell = np.r_[True, (g[1:] != g[:-1]) | (x[1:] != x[:-1])]
+    cell = np.cumsum(new_cell) - 1
+    n_yes = np.bincount(cell, weights=table.n_yes[order])
+    n_total = np.bincount(cell, weights=table.n_total[order])
+    cell_group, cell_level = g[new_cell], x[new_cell]
+    group_start = np.r_[True, cell_group[1:] != cell_group[:-1]]
+    first_cell = np.maximum.accumulate(np.where(group_start, np.arange(cell.max() + 1), 0))
+    position = np.arange(cell.max() + 1) - first_cell
+    shape = (len(starts), position.max() + 1)
+    arrays = [np.zeros(shape) for _ in range(3)]
+    for array, values in zip(arrays, (cell_level, n_yes, n_total), strict=True):
+        array[cell_group, position] = values
+    empty = arrays[2].sum(axis=1) == 0
+    if np.any(empty):
+        i = starts[np.argmax(empty)]
+        raise ValueError(
+            f"{path}, row {table.row[i]}: participant {table.participant[i]!r}, condition "
+            f"{table.condition[i]!r}: expected at least one trial, got n_total = 0"
+        )
+    return Groups(tuple(table.participant[starts]), tuple(table.condition[starts]), *arrays)
+
+
+# -- fitting and writing ------------------------------------------------------
+
+
+def fit_groups(
+    groups,
+    *,
+    key,
+    n_resamples=1000,
+    method="parametric",
+    confidence=0.95,
+    guess=0.0,
+    lapse=0.0,
+):
+    """Fit every group in one call, with confidence intervals for the PSE.
+
+    Parameters
+    ----------
+    groups : Groups
+    key : PRNG key
+        For the bootstrap; same key, same intervals.
+    n_resamples : int, optional
+        Bootstrap resamples per group; 0 gives Wald intervals
+        ``pse +- z se_pse`` from the observed information instead.
+    method, confidence, guess, lapse
+        As for :func:`jaxadapt.psychophysics.fit.bootstrap`.
+
+    Returns
+    -------
+    FitTable
+    """
+    arrays = (jnp.asarray(a) for a in (groups.levels, groups.n_yes, groups.n_total))
+    options = dict(guess=guess, lapse=lapse)
+    if n_resamples:
+        boot = psyfit.bootstrap(
+            key,
+            *arrays,
+            n_resamples=n_resamples,
+            method=method,
+            confidence=confidence,
+            **options,
+        )
+        fits, low, high = boot.fit, boot.pse_ci[:, 0], boot.pse_ci[:, 1]
+    else:
+        fits = psyfit.fit(*arrays, **options)
+        half = ndtri((1 + confidence) / 2) * fits.se_pse
+        low, high = fits.pse - half, fits.pse + half
+    columns = [fits.pse, fits.sigma, fits.b0, fits.b1, fits.se_pse, low, high, fits.loglik]
+    return FitTable(
+        groups.participant,
+        groups.condition,
+        *(np.asarray(c) for c in columns),
+        np.asarray(fits.converged),
+        np.asarray(fits.flags),
+    )
+
+
+#: How ``write_fits`` formats the columns that are not numbers.
+_FORMATS = {
+    "converged": lambda value: "true" if value else "false",
+    "flags": lambda value: "|".join(psyfit.flag_names(value)),
+}
+
+
+def write_fits(path, table):
+    """Write ``fits.csv``: a header of ``FIT_COLUMNS`` and one row per group.
+
+    Numbers are written as NumPy prints them (the shortest decimal that
+    reads back to the same value in their dtype), ``converged`` as ``true``/``false``
+    and ``flags`` as flag names joined by ``|`` (empty when none). The file is
+    written to a temporary file first and renamed, so that an error leaves no
+    half-written output.
+    """
+    path = Path(path)
+    with tempfile.NamedTemporaryFile(
+        "w", newline="", dir=path.parent, prefix=path.name, suffix=".tmp", delete=False
+    ) as file:
+        try:
+            writer = csv.writer(file)
+            writer.writerow(FIT_COLUMNS)
+            for row in zip(*table, strict=True):
+                writer.writerow(
+                    [_FORMATS.get(c, str)(v) for c, v in zip(FIT_COLUMNS, row, strict=True)]
+                )
+        except BaseException:
+            file.close()
+            os.unlink(file.name)
+            raise
+    os.replace(file.name, path)
