@@ -188,6 +188,41 @@ def build_parser():
     render.add_argument(
         "--chunk", type=int, default=32, help="frames processed per call (default: 32)"
     )
+    psychometric = sub.add_parser(
+        "psychometric",
+        help="analyse constant-stimuli experiments (Jacobs et al. 2015, §4)",
+        description="Psychometric analysis of a method-of-constant-stimuli experiment.",
+    )
+    psy = psychometric.add_subparsers(dest="action", required=True, metavar="ACTION")
+    fit = psy.add_parser(
+        "fit",
+        help="fit cumulative Gaussians per participant and condition, and compare conditions",
+        description="Fit P(x) = Phi((x - PSE) / sigma) by maximum likelihood (a probit GLM, "
+        "as MATLAB's glmfit in the paper) to every (participant, condition) of a trial "
+        "table, with bootstrap intervals for the PSE; compare the conditions' PSEs with the "
+        "Wilcoxon rank-sum test. Writes fits.csv, group_test.csv, psychometric.png (Fig. 13) "
+        "and pse.png (Fig. 14) into --out.",
+    )
+    fit.add_argument(
+        "trials",
+        type=Path,
+        metavar="TRIALS.csv",
+        help="columns participant, condition, level (log10 relative to the standard), "
+        "response (1: test brighter); or level, n_yes, n_total",
+    )
+    fit.add_argument("--out", type=Path, default=Path("out"), help="output folder (default ./out)")
+    fit.add_argument(
+        "--resamples",
+        type=int,
+        default=1000,
+        help="bootstrap resamples per group for the PSE interval (0: Wald interval); default 1000",
+    )
+    fit.add_argument(
+        "--control",
+        default="control",
+        help="condition the others are compared with (default: control)",
+    )
+    fit.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
     return parser
 
 
@@ -324,6 +359,82 @@ def render(args, console):
     )
 
 
+def psychometric_fit(args, console):
+    """``jaxadapt psychometric fit``: fits, group tests and figures into ``--out``."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxadapt import figures
+    from jaxadapt.psychophysics import stats, trials
+
+    if args.resamples < 0:
+        raise UsageError(f"--resamples: expected a number >= 0, got {args.resamples}")
+    groups = trials.group_trials(trials.read_trials(args.trials))
+    table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
+    out = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
+    except OSError as e:
+        raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
+    try:
+        trials.write_fits(staging / "fits.csv", table)
+        condition = np.asarray(table.condition)
+        rows = []
+        for other in dict.fromkeys(table.condition):
+            if other == args.control or args.control not in condition:
+                continue
+            c = stats.compare(
+                jnp.asarray(table.pse[condition == other]),
+                jnp.asarray(table.pse[condition == args.control]),
+            )
+            rows.append(
+                [
+                    other,
+                    args.control,
+                    float(c.median_x),
+                    float(c.median_y),
+                    float(c.shift),
+                    float(c.rank_biserial),
+                    float(c.test.statistic),
+                    float(c.test.z),
+                    float(c.test.p),
+                    int(c.test.n_x),
+                    int(c.test.n_y),
+                ]
+            )
+        with open(staging / "group_test.csv", "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(
+                [
+                    "condition",
+                    "control",
+                    "median",
+                    "median_control",
+                    "shift",
+                    "rank_biserial",
+                    "W",
+                    "z",
+                    "p",
+                    "n",
+                    "n_control",
+                ]
+            )
+            writer.writerows(rows)
+        figures.plot_psychometric(staging / "psychometric.png", groups, table)
+        figures.plot_pse(staging / "pse.png", table)
+        for p in sorted(staging.iterdir()):
+            p.replace(out / p.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    for row in rows:
+        console.print(
+            f"{row[0]} vs {row[1]}: median PSE {row[2]:+.3f} vs {row[3]:+.3f} log units, "
+            f"rank-sum p = {row[8]:.3g} (n = {row[9]}, {row[10]})"
+        )
+    console.print(f"wrote fits.csv, group_test.csv, psychometric.png, pse.png to {out}/")
+
+
 def main(argv=None):
     from rich.console import Console
 
@@ -335,6 +446,8 @@ def main(argv=None):
     try:
         if args.command == "render":
             render(args, console)
+        elif args.command == "psychometric":
+            psychometric_fit(args, console)
     except (UsageError, ValueError, FileNotFoundError, OSError, eqx.EquinoxRuntimeError) as e:
         message = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         print(f"jaxadapt: error: {message}", file=sys.stderr)

@@ -84,3 +84,56 @@ def plot_columns(path, table, title):
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+
+
+def plot_psychometric(path, groups, table, columns=4):
+    """Fig. 13 of Jacobs et al. (2015): each group's data and fitted curve.
+
+    Parameters
+    ----------
+    groups : jaxadapt.psychophysics.trials.Groups
+        Counts per (participant, condition).
+    table : jaxadapt.psychophysics.trials.FitTable
+        Their fits.
+    """
+    from scipy.special import ndtr
+
+    participants = list(dict.fromkeys(groups.participant))
+    conditions = list(dict.fromkeys(groups.condition))
+    ncols = min(columns, len(participants))
+    nrows = -(-len(participants) // ncols)
+    fig = Figure(figsize=(3.2 * ncols, 2.6 * nrows + 0.5))
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    x = np.linspace(groups.levels.min() - 0.1, groups.levels.max() + 0.1, 200)
+    for g, (who, cond) in enumerate(zip(groups.participant, groups.condition, strict=True)):
+        ax = axes[participants.index(who)]
+        colour = f"C{conditions.index(cond)}"
+        shown = groups.n_total[g] > 0
+        p = groups.n_yes[g][shown] / groups.n_total[g][shown]
+        ax.plot(groups.levels[g][shown], p, "o", color=colour, ms=4)
+        curve = ndtr((x - table.pse[g]) / table.sigma[g])
+        ax.plot(x, curve, color=colour, label=f"{cond}: PSE {table.pse[g]:+.3f}")
+        ax.set(title=str(who), ylim=(-0.03, 1.03), xlabel="log10 test / standard")
+        ax.legend(fontsize=7)
+    for ax in axes[len(participants) :]:
+        ax.set_axis_off()
+    fig.suptitle("proportion 'test brighter' and cumulative-Gaussian fits")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def plot_pse(path, table):
+    """Fig. 14 of Jacobs et al. (2015): the PSEs of every condition, with medians."""
+    conditions = list(dict.fromkeys(table.condition))
+    fig = Figure(figsize=(1.8 + 1.4 * len(conditions), 3.8))
+    ax = fig.subplots()
+    for i, cond in enumerate(conditions):
+        pse = table.pse[np.asarray(table.condition) == cond]
+        jitter = np.linspace(-0.12, 0.12, len(pse)) if len(pse) > 1 else np.zeros(1)
+        ax.plot(i + jitter, pse, "o", color=f"C{i}", alpha=0.7)
+        ax.plot([i - 0.25, i + 0.25], [np.median(pse)] * 2, color="k", lw=2)
+    ax.axhline(0.0, color="0.6", lw=0.8, ls=":")
+    ax.set_xticks(range(len(conditions)), conditions)
+    ax.set(ylabel="PSE (log10 units)", title="points of subjective equality")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)

@@ -201,3 +201,39 @@ def test_bad_gaze_file_is_named(tmp_path, capsys):
         str(tmp_path / "o"),
     )
     _assert_one_line_error(status, err, "gaze.csv")
+
+
+def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    levels = np.log10(np.array([14, 19, 27, 35, 49]) / 27)  # the afterimage protocol
+    rows = ["participant,condition,level,n_yes,n_total"]
+    for p in range(6):
+        for condition, shift in (("control", 0.0), ("manipulated", 0.15)):
+            k = rng.binomial(20, norm_cdf((levels - shift) / 0.1))
+            rows += [f"p{p},{condition},{x:.4f},{y},20" for x, y in zip(levels, k, strict=True)]
+    trials = tmp_path / "trials.csv"
+    trials.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    status, err = _run(
+        capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(out)
+    )
+    assert status == 0, err
+    fits = list(csv.DictReader(open(out / "fits.csv")))
+    assert len(fits) == 12 and all(f["converged"] == "true" for f in fits)
+    (test,) = list(csv.DictReader(open(out / "group_test.csv")))
+    assert float(test["shift"]) == pytest.approx(0.15, abs=0.06) and float(test["p"]) < 0.01
+    assert (out / "psychometric.png").stat().st_size > 0 and (out / "pse.png").exists()
+
+
+def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
+    trials = tmp_path / "trials.csv"
+    trials.write_text("participant,condition,level,response\np1,control,0.1,1\np1,control,x,0\n")
+    status, err = _run(capsys, "psychometric", "fit", str(trials), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "trials.csv", "3")
+    assert not (tmp_path / "o").exists()
+
+
+def norm_cdf(z):
+    from scipy.special import ndtr
+
+    return ndtr(z)
