@@ -41,13 +41,16 @@ individual fits:
 
 The tolerance follows the dtype (``eps**0.7``: 1e-11 in float64, 1.4e-5 in
 float32); with fitted rates the fit also stops when the log-likelihood a
-further step could gain is below ``sqrt(eps)/2`` (see :class:`_BFGS`). A typical dataset takes 6-14 iterations, a separated one up to about
-40; in float64 the estimates agree with statsmodels' to about 1e-8 relative
-(the precision of statsmodels' own IRLS), in float32 the PSEs with the float64
-ones to about 1e-5 log units. Fitted rates are ``low + (high - low) sigmoid(u)`` with a
-weak Gaussian prior (standard deviation ``PRIOR_SD`` = 10) on ``u``, which
-keeps a rate that wants to leave its bounds finite (within about 1% of its
-range from the bound) and the information matrix invertible.
+further step could gain is below ``sqrt(eps)/2`` (see :class:`_BFGS`). A
+typical dataset takes 6-14 iterations, a separated one up to about 40. In
+float64 the estimates agree with statsmodels' to about 1e-8 relative (the
+precision of statsmodels' own IRLS); in float32 the PSEs agree with the
+float64 ones to about 1e-5 log units.
+
+Fitted rates are ``low + (high - low) sigmoid(u)`` with a weak Gaussian prior
+(standard deviation ``PRIOR_SD`` = 10) on ``u``, which keeps a rate that wants
+to leave its bounds finite (within about 1% of its range from the bound) and
+the information matrix invertible.
 
 Degenerate data
 ---------------
@@ -296,22 +299,24 @@ class _Data(NamedTuple):
 
 def _prepare(x, k, n):
     """Standardise the levels and flag data for which no MLE exists."""
-    valid = n > 0
     total = jnp.sum(n)
     w = n / jnp.maximum(total, 1.0)
     c = jnp.sum(w * x)
     s = jnp.sqrt(jnp.sum(w * (x - c) ** 2))
-    lo = jnp.min(jnp.where(valid, x, jnp.inf))
-    hi = jnp.max(jnp.where(valid, x, -jnp.inf))
+
+    def lowest(mask):
+        return jnp.min(jnp.where(mask, x, jnp.inf))
+
+    def highest(mask):
+        return jnp.max(jnp.where(mask, x, -jnp.inf))
+
+    valid = n > 0
     yes, no = valid & (k > 0), valid & (k < n)
-
-    def extreme(mask, fn, fill):
-        return fn(jnp.where(mask, x, fill))
-
+    lo, hi = lowest(valid), highest(valid)
     single = ~(hi > lo)
     all_same = ~jnp.any(yes) | ~jnp.any(no)
-    increasing = extreme(no, jnp.max, -jnp.inf) <= extreme(yes, jnp.min, jnp.inf)
-    decreasing = extreme(yes, jnp.max, -jnp.inf) <= extreme(no, jnp.min, jnp.inf)
+    increasing = highest(no) <= lowest(yes)  # every "no" at or below every "yes"
+    decreasing = highest(yes) <= lowest(no)
     separated = (increasing | decreasing) & ~all_same & ~single
     flags = ALL_SAME * all_same + SEPARATION * separated + SINGLE_LEVEL * single
     s = jnp.where(single, 1.0, s)
@@ -561,13 +566,14 @@ def _over_datasets(fn, levels, n_yes, n_total, guess, lapse, *batched):
     batch, L = levels.shape[:-1], levels.shape[-1]
     flat = [a.reshape(-1, L) for a in (levels, n_yes, n_total)]
     flat += [jax.tree.map(lambda r: r.reshape(-1), r) for r in (guess, lapse)]
-    flat += [b.reshape((-1,) + b.shape[len(batch) :]) for b in batched]
+    flat += [jax.tree.map(lambda b: b.reshape((-1,) + b.shape[len(batch) :]), b) for b in batched]
     out = jax.vmap(fn)(*flat)
     return jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), out)
 
 
 def _fit_batch(levels, n_yes, n_total, guess, lapse, max_steps):
-    """Fit checked ``(..., L)`` arrays, one ``vmap`` over the datasets."""
+    """Fit ``(..., L)`` arrays (already checked), one ``vmap`` over the
+    datasets."""
     return _over_datasets(
         partial(_fit_one, max_steps=max_steps), levels, n_yes, n_total, guess, lapse
     )
@@ -642,16 +648,23 @@ def fit(levels, n_yes, n_total, *, guess=0.0, lapse=0.0, max_steps=MAX_STEPS):
 METHODS = ("parametric", "nonparametric")
 
 
-def _bootstrap_one(x, k, n, guess, lapse, key, parametric, confidence, n_resamples, max_steps):
-    original = _fit_one(x, k, n, guess, lapse, max_steps)
-    p_fit = psychometric(x, original.pse, original.sigma, original.guess, original.lapse)
+class _Intervals(NamedTuple):
+    pse_ci: jax.Array
+    slope_ci: jax.Array
+    pse_se: jax.Array
+    slope_se: jax.Array
+    flagged: jax.Array
+
+
+def _resample_one(x, k, n, guess, lapse, key, fit, parametric, confidence, n_resamples, max_steps):
+    """Resample one dataset from its fit (or its proportions) and refit."""
+    p_fit = psychometric(x, fit.pse, fit.sigma, fit.guess, fit.lapse)
     p = jnp.where(parametric, p_fit, k / jnp.where(n > 0, n, 1.0))
     counts = sample_counts(key, jnp.broadcast_to(n, (n_resamples,) + n.shape), p)
     boot = jax.vmap(lambda c: _fit_one(x, c, n, guess, lapse, max_steps))(counts)
     q = jnp.stack([(1 - confidence) / 2, (1 + confidence) / 2]).astype(x.dtype)
     flagged = ((boot.flags & NO_MLE) > 0) | ~boot.converged
-    return Bootstrap(
-        fit=original,
+    return _Intervals(
         pse_ci=jnp.quantile(boot.pse, q),
         slope_ci=jnp.quantile(boot.b1, q),
         pse_se=jnp.std(boot.pse),
@@ -661,11 +674,10 @@ def _bootstrap_one(x, k, n, guess, lapse, key, parametric, confidence, n_resampl
 
 
 @eqx.filter_jit
-def _bootstrap(key, levels, n_yes, n_total, guess, lapse, parametric, confidence, static):
-    args = _check(levels, n_yes, n_total, guess, lapse)
+def _resample(key, levels, n_yes, n_total, guess, lapse, fits, parametric, confidence, static):
     keys = jax.random.split(key, levels.shape[:-1])
-    one = partial(_bootstrap_one, parametric=parametric, confidence=confidence, **static)
-    return _over_datasets(one, *args, keys)
+    one = partial(_resample_one, parametric=parametric, confidence=confidence, **static)
+    return _over_datasets(one, levels, n_yes, n_total, guess, lapse, keys, fits)
 
 
 def bootstrap(
@@ -707,8 +719,8 @@ def bootstrap(
     -----
     Percentile intervals (Wichmann and Hill 2001b, §2). Resamples whose data
     are degenerate keep their finite, flagged estimates (see the module notes)
-    and count in ``flagged``. All datasets and resamples are fitted in one
-    ``vmap``.
+    and count in ``flagged``. The data are fitted by :func:`fit` (the same
+    compiled call), then all datasets' resamples in one ``vmap``.
 
     Examples
     --------
@@ -725,9 +737,11 @@ def bootstrap(
     if int(n_resamples) < 2:
         raise ValueError(f"n_resamples: expected at least 2, got {n_resamples!r}")
     args = _inputs(levels, n_yes, n_total, guess, lapse)
+    fits = _fit(*args, max_steps)
     parametric = jnp.asarray(method == "parametric")
     static = dict(n_resamples=int(n_resamples), max_steps=int(max_steps))
-    return _bootstrap(key, *args, parametric, jnp.asarray(confidence), static)
+    intervals = _resample(key, *args, fits, parametric, jnp.asarray(confidence), static)
+    return Bootstrap(fits, *intervals)
 
 
 # -- several devices ----------------------------------------------------------

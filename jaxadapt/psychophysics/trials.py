@@ -16,7 +16,8 @@ the test was judged brighter. ``participant`` and ``condition`` may be left
 out (one group, named ``"all"``). :func:`read_trials` reads and validates
 such a file, :func:`group_trials` gathers the counts of each (participant,
 condition) into padded arrays for the vmapped fit, :func:`fit_groups` fits
-them all in one call, and :func:`write_fits` writes ``fits.csv``.
+them all in one call, and :func:`write_fits` writes ``fits.csv``;
+:func:`fit_file` does all four, paths in, table out.
 
 Every problem in the input raises ``ValueError`` with a message that names the
 file and the row (rows are counted as a spreadsheet shows them, the header
@@ -24,15 +25,13 @@ being row 1) or the column.
 """
 
 import csv
-import os
-import tempfile
-from pathlib import Path
 from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
+from jaxadapt.io import atomic_path
 from jaxadapt.psychophysics import fit as psyfit
 
 #: Columns of a trial table with one row per trial.
@@ -70,6 +69,8 @@ class TrialTable(NamedTuple):
         "Test brighter" responses and trials.
     row : numpy array of int
         Row of the file (header = 1), for messages.
+    source : str
+        The file, for messages.
     """
 
     participant: np.ndarray
@@ -78,6 +79,7 @@ class TrialTable(NamedTuple):
     n_yes: np.ndarray
     n_total: np.ndarray
     row: np.ndarray
+    source: str
 
 
 class Groups(NamedTuple):
@@ -146,19 +148,21 @@ def _fail(path, rows, bad, column, expected, values):
     )
 
 
+def _is_number(text):
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _numbers(path, rows, column, values):
     """A column as floats; the first non-numeric or non-finite cell is named."""
     try:
         numbers = np.array(values, dtype=float)
     except ValueError:
-        bad = []
-        for value in values:
-            try:
-                float(value)
-                bad.append(False)
-            except ValueError:
-                bad.append(True)
-        _fail(path, rows, np.array(bad), column, "a number", values)
+        bad = ~np.array([_is_number(v) for v in values])
+        _fail(path, rows, bad, column, "a number", values)
     if not np.all(np.isfinite(numbers)):
         _fail(path, rows, ~np.isfinite(numbers), column, "a finite number", values)
     return numbers
@@ -239,20 +243,20 @@ def read_trials(path):
                 f"{path}, row {rows[i]}: column 'n_yes': expected at most n_total = "
                 f"{column['n_total'][i]}, got {column['n_yes'][i]!r}"
             )
-    return TrialTable(names["participant"], names["condition"], level, n_yes, n_total, rows)
+    return TrialTable(
+        names["participant"], names["condition"], level, n_yes, n_total, rows, str(path)
+    )
 
 
 # -- grouping -----------------------------------------------------------------
 
 
-def group_trials(table, path="trials"):
+def group_trials(table):
     """Counts per (participant, condition) and level, as padded arrays.
 
     Parameters
     ----------
     table : TrialTable
-    path : str, optional
-        Name of the source, for messages.
 
     Returns
     -------
@@ -287,7 +291,7 @@ def group_trials(table, path="trials"):
     if np.any(empty):
         i = starts[np.argmax(empty)]
         raise ValueError(
-            f"{path}, row {table.row[i]}: participant {table.participant[i]!r}, condition "
+            f"{table.source}, row {table.row[i]}: participant {table.participant[i]!r}, condition "
             f"{table.condition[i]!r}: expected at least one trial, got n_total = 0"
         )
     return Groups(tuple(table.participant[starts]), tuple(table.condition[starts]), *arrays)
@@ -361,23 +365,36 @@ def write_fits(path, table):
 
     Numbers are written as NumPy prints them (the shortest decimal that
     reads back to the same value in their dtype), ``converged`` as ``true``/``false``
-    and ``flags`` as flag names joined by ``|`` (empty when none). The file is
-    written to a temporary file first and renamed, so that an error leaves no
-    half-written output.
+    and ``flags`` as flag names joined by ``|`` (empty when none). The file
+    appears only once complete (:func:`jaxadapt.io.atomic_path`).
     """
-    path = Path(path)
-    with tempfile.NamedTemporaryFile(
-        "w", newline="", dir=path.parent, prefix=path.name, suffix=".tmp", delete=False
-    ) as file:
-        try:
-            writer = csv.writer(file)
-            writer.writerow(FIT_COLUMNS)
-            for row in zip(*table, strict=True):
-                writer.writerow(
-                    [_FORMATS.get(c, str)(v) for c, v in zip(FIT_COLUMNS, row, strict=True)]
-                )
-        except BaseException:
-            file.close()
-            os.unlink(file.name)
-            raise
-    os.replace(file.name, path)
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(FIT_COLUMNS)
+        for row in zip(*table, strict=True):
+            cells = zip(FIT_COLUMNS, row, strict=True)
+            writer.writerow([_FORMATS.get(c, str)(v) for c, v in cells])
+
+
+def fit_file(trials_path, fits_path, *, key, **options):
+    """Read a trial table, fit every group and write ``fits.csv``.
+
+    Parameters
+    ----------
+    trials_path, fits_path : str or Path
+        The trial table to read and the fit table to write.
+    key : PRNG key
+        For the bootstrap.
+    **options
+        ``n_resamples``, ``method``, ``confidence``, ``guess``, ``lapse`` of
+        :func:`fit_groups`.
+
+    Returns
+    -------
+    FitTable
+        What was written, e.g. for the group test between conditions
+        (:func:`jaxadapt.psychophysics.stats.compare` on the PSEs).
+    """
+    table = fit_groups(group_trials(read_trials(trials_path)), key=key, **options)
+    write_fits(fits_path, table)
+    return table

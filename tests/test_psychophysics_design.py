@@ -1,0 +1,294 @@
+"""Experiment designs (§4.1.1, §4.2.1 of the 2015 paper) and trial tables."""
+
+import csv
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from jaxadapt.psychophysics import design, trials
+from jaxadapt.psychophysics import fit as F  # noqa: N812
+
+A, M = design.AFTERIMAGE, design.MESOPIC
+many_trial_lists = jax.jit(jax.vmap(lambda key: design.trial_list(A, key)))
+
+
+def test_presets_are_the_papers_protocols():
+    # §4.1.1: standard 27 cd/m2, tests 14, 19, 27, 35, 49 cd/m2, 50 ms + 2.5 s.
+    assert A.standard == 27.0 and A.tests == (14.0, 19.0, 27.0, 35.0, 49.0)
+    assert (A.presentation_s, A.blank_s, A.exclusion) == (0.05, 2.5, 0.7)
+    # §4.2.1: 5.5e-2 cd/m2 at the white tile, tests 4.1e-2 ... 7.5e-2 cd/m2,
+    # 1.25 s + 0.75 s, after five minutes in darkness.
+    assert M.standard == 5.5e-2 and M.tests == (4.1e-2, 4.8e-2, 5.5e-2, 6.8e-2, 7.5e-2)
+    assert (M.presentation_s, M.blank_s, M.dark_adaptation_s) == (1.25, 0.75, 300.0)
+    np.testing.assert_allclose(A.levels, np.log10(np.array(A.tests) / 27.0))
+    assert A.levels[2] == 0.0 and np.all(np.diff(A.levels) > 0)
+    assert design.PROTOCOLS == {"afterimage": A, "mesopic": M}
+
+
+@pytest.mark.parametrize("protocol", [A, M])
+def test_blocks_hold_the_papers_counts(protocol):
+    t = jax.tree.map(np.asarray, design.trial_list(protocol, jax.random.key(0)))
+    # 20 training trials, then "each test image was paired with the standard
+    # 20 times", then "30 repetitions of each manipulated test condition and
+    # 10 additional repetitions of each control test condition".
+    assert protocol.n_trials == len(t.block) == 20 + 5 * 20 + 5 * (30 + 10)
+    assert np.all(np.diff(t.block) >= 0)  # blocks in order
+    assert t.training.sum() == 20 and np.all(t.training == (t.block == 0))
+    training_levels = protocol.levels[t.level_index[t.training]]
+    assert np.all(training_levels != 0)  # every training answer is right or wrong
+    for block, condition, per_level in [(1, 0, 20), (2, 1, 30), (2, 0, 10)]:
+        cell = (t.block == block) & (t.condition == condition)
+        np.testing.assert_array_equal(np.bincount(t.level_index[cell], minlength=5), per_level)
+        for i in range(5):  # counter-balanced: half with the test first
+            assert t.test_first[cell & (t.level_index == i)].sum() == per_level // 2
+    np.testing.assert_allclose(t.level, protocol.levels[t.level_index])
+    np.testing.assert_allclose(t.luminance, np.array(protocol.tests)[t.level_index])
+
+
+def test_same_key_same_sequence_and_vmap_equals_a_loop():
+    keys = jax.random.split(jax.random.key(3), 4)
+    batch = many_trial_lists(keys)
+    for i, key in enumerate(keys):
+        single = design.trial_list(A, key)
+        for a, b in zip(single, batch, strict=True):
+            np.testing.assert_array_equal(a, b[i])
+    again = many_trial_lists(keys)
+    np.testing.assert_array_equal(again.level, batch.level)
+    assert not np.array_equal(batch.level[0], batch.level[1])
+
+
+def test_order_within_blocks_is_uniformly_random():
+    # Over 2000 sequences, the first control-block trial is each of the 100
+    # control-block cells' trials about equally often: every level 1/5.
+    t = many_trial_lists(jax.random.split(jax.random.key(4), 2000))
+    first = np.asarray(t.level_index[:, 20])
+    counts = np.bincount(first, minlength=5)
+    assert np.all(np.abs(counts - 400) < 4 * np.sqrt(2000 * 0.2 * 0.8))
+    # and the test comes first in about half of the trials at any position
+    assert abs(np.asarray(t.test_first[:, 100]).mean() - 0.5) < 0.05
+
+
+def test_odd_repetitions_are_balanced_up_to_one_trial():
+    odd = design.Protocol(
+        name="odd",
+        standard=1.0,
+        tests=(0.5, 2.0),
+        blocks=(design.Block("only", (("control", 3),)),),
+    )
+    firsts = []
+    for seed in range(40):
+        t = design.trial_list(odd, jax.random.key(seed))
+        per_level = [int(t.test_first[t.level_index == i].sum()) for i in range(2)]
+        assert all(f in (1, 2) for f in per_level)
+        firsts.append(per_level[0])
+    assert 1 in firsts and 2 in firsts  # the extra trial's order is a coin toss
+
+
+def test_training_accuracy_exclusion_and_counts():
+    t = design.trial_list(A, jax.random.key(5))
+    correct = (t.level > 0).astype(float)
+    assert float(design.training_accuracy(t, correct)) == 1.0
+    # Flip some training answers: 14/20 correct is kept, 13/20 excluded
+    # ("less than 70% of the time").
+    training = np.flatnonzero(np.asarray(t.training))
+    responses = jnp.stack(
+        [
+            correct.at[training[:6]].set(1 - correct[training[:6]]),
+            correct.at[training[:7]].set(1 - correct[training[:7]]),
+        ]
+    )
+    np.testing.assert_allclose(design.training_accuracy(t, responses), [0.7, 0.65])
+    np.testing.assert_array_equal(design.excluded(A, t, responses), [False, True])
+    n_yes, n_total = design.counts(A, t, responses)
+    assert n_yes.shape == n_total.shape == (2, 2, 5)
+    np.testing.assert_array_equal(n_total[0], np.full((2, 5), 30))
+    # Training trials are left out, so flipping them does not change counts.
+    np.testing.assert_array_equal(n_yes[0], n_yes[1])
+    np.testing.assert_array_equal(n_yes[0], [[0, 0, 0, 30, 30]] * 2)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(standard=0.0), "standard, tests: expected positive"),
+        (dict(exclusion=1.5), r"exclusion: expected a fraction in \(0, 1\]"),
+        (dict(blocks=(design.Block("b", (("placebo", 2),)),)), "expected conditions from"),
+        (dict(blocks=(design.Block("b", (("control", -1),)),)), "expected counts >= 0"),
+        (dict(blocks=(design.Block("b", (("control", 1),), levels=(7,)),)), "levels: expected"),
+        (
+            dict(blocks=(design.Block("t", (("control", 1),), training=True),)),
+            "training trials need tests that differ from the standard",
+        ),
+    ],
+)
+def test_bad_protocols_are_named(kwargs, match):
+    base = dict(name="x", standard=27.0, tests=A.tests, blocks=A.blocks)
+    with pytest.raises(ValueError, match=match):
+        design.Protocol(**{**base, **kwargs})
+
+
+# -- trial tables ---------------------------------------------------------------
+
+
+def _write(path, rows):
+    with open(path, "w", newline="") as file:
+        csv.writer(file).writerows(rows)
+    return path
+
+
+HEADER = ["participant", "condition", "level", "response"]
+
+
+def test_trial_rows_and_count_rows_give_the_same_groups(tmp_path):
+    rng = np.random.default_rng(0)
+    rows, counts = [], {}
+    for p in ("p1", "p2"):
+        for c in ("control", "manipulated"):
+            for x in (-0.2, 0.0, 0.2):
+                responses = rng.integers(0, 2, 10)
+                rows += [[p, c, x, r] for r in responses]
+                counts[p, c, x] = responses.sum()
+    order = rng.permutation(len(rows))
+    by_trial = trials.read_trials(_write(tmp_path / "t.csv", [HEADER] + [rows[i] for i in order]))
+    by_count = trials.read_trials(
+        _write(
+            tmp_path / "c.csv",
+            [["participant", "condition", "level", "n_yes", "n_total"]]
+            + [[p, c, x, k, 10] for (p, c, x), k in counts.items()],
+        )
+    )
+    a, b = trials.group_trials(by_trial), trials.group_trials(by_count)
+    assert len(a.participant) == 4
+    keys = list(zip(b.participant, b.condition, strict=True))
+    index = [keys.index(key) for key in zip(a.participant, a.condition, strict=True)]
+    for name in ("levels", "n_yes", "n_total"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name)[index])
+    np.testing.assert_array_equal(a.levels[0], [-0.2, 0.0, 0.2])
+    np.testing.assert_array_equal(a.n_total, 10)
+
+
+def test_padding_groups_and_optional_group_columns(tmp_path):
+    table = trials.read_trials(
+        _write(tmp_path / "t.csv", [["level", "n_yes", "n_total"], [0.1, 3, 5], [0.3, 4, 5]])
+    )
+    g = trials.group_trials(table)
+    assert g.participant == ("all",) and g.condition == ("all",)
+    uneven = trials.TrialTable(
+        np.array(["a", "a", "b"], object),
+        np.array(["c", "c", "c"], object),
+        np.array([0.1, 0.2, 0.1]),
+        np.array([1.0, 0.0, 1.0]),
+        np.ones(3),
+        np.array([2, 3, 4]),
+        "uneven.csv",
+    )
+    g = trials.group_trials(uneven)
+    np.testing.assert_array_equal(g.n_total, [[1, 1], [1, 0]])  # b is padded
+
+
+@pytest.mark.parametrize(
+    "rows, match",
+    [
+        ([], "expected a header row, got an empty file"),
+        ([HEADER], "expected at least one data row"),
+        ([["participant", "condition", "response"], ["p", "c", 1]], "missing column 'level'"),
+        (
+            [["participant", "condition", "level", "n_yes"], ["p", "c", 0, 1]],
+            "missing column 'n_total'",
+        ),
+        ([HEADER + ["n_yes"], ["p", "c", 0, 1, 1]], "either a 'response' column"),
+        (
+            [HEADER, ["p", "c", 0.1, 1], ["p", "c", "bright", 1]],
+            r"row 3: column 'level': .*a number",
+        ),
+        ([HEADER, ["p", "c", "nan", 1]], r"row 2: column 'level': expected a finite number"),
+        (
+            [HEADER, ["p", "c", 0.1, 1], ["p", "c", 0.1, 2]],
+            r"row 3: column 'response': expected 0 or 1, got '2'",
+        ),
+        ([HEADER, ["p", "c", 0.1, "yes"]], r"row 2: column 'response': expected a number"),
+        ([HEADER, ["p", "c", 0.1]], r"row 2: expected 4 cells, got 3"),
+        ([HEADER, [" ", "c", 0.1, 1]], r"row 2: column 'participant': expected a non-empty name"),
+        (
+            [["level", "n_yes", "n_total"], [0.1, 1, 5], [0.2, -1, 5]],
+            r"row 3: column 'n_yes': expected a whole number >= 0, got '-1'",
+        ),
+        ([["level", "n_yes", "n_total"], [0.1, 1, 2.5]], r"column 'n_total': expected a whole"),
+        ([["level", "n_yes", "n_total"], [0.1, 6, 5]], r"row 2: column 'n_yes': expected at most"),
+        (
+            [["participant", "level", "n_yes", "n_total"], ["a", 0.1, 1, 5], ["b", 0.1, 0, 0]],
+            r"row 3: participant 'b', condition 'all': expected at least one trial",
+        ),
+    ],
+)
+def test_bad_trial_tables_are_named(tmp_path, rows, match):
+    path = _write(tmp_path / "bad.csv", rows)
+    with pytest.raises(ValueError, match=match) as error:
+        trials.group_trials(trials.read_trials(path))
+    assert "bad.csv" in str(error.value)
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothere.csv"):
+        trials.read_trials(tmp_path / "nothere.csv")
+
+
+@given(st.lists(st.tuples(st.sampled_from("abc"), st.integers(-3, 3), st.booleans()), min_size=1))
+def test_grouping_keeps_every_trial(rows):
+    table = trials.TrialTable(
+        np.array([r[0] for r in rows], object),
+        np.full(len(rows), "c", object),
+        np.array([r[1] / 10 for r in rows]),
+        np.array([float(r[2]) for r in rows]),
+        np.ones(len(rows)),
+        np.arange(2, len(rows) + 2),
+        "rows.csv",
+    )
+    g = trials.group_trials(table)
+    assert g.n_total.sum() == len(rows) and g.n_yes.sum() == sum(r[2] for r in rows)
+    for p, levels, n in zip(g.participant, g.levels, g.n_total, strict=True):
+        mine = sorted({r[1] / 10 for r in rows if r[0] == p})
+        np.testing.assert_array_equal(levels[: len(mine)], mine)
+        assert np.all(n[len(mine) :] == 0)
+
+
+def test_fit_groups_writes_fits_csv(tmp_path):
+    # Simulated responses of two participants in the afterimage protocol.
+    t = design.trial_list(A, jax.random.key(7))
+    p = F.psychometric(t.level, jnp.where(t.condition == 1, 0.05, 0.0), 0.1)
+    responses = jax.random.bernoulli(jax.random.key(8), p, (2, p.shape[0])).astype(int)
+    rows = [HEADER]
+    for i in range(2):
+        for trial in range(20, p.shape[0]):  # the analysed trials
+            rows.append(
+                [
+                    f"p{i}",
+                    A.conditions[int(t.condition[trial])],
+                    float(t.level[trial]),
+                    int(responses[i, trial]),
+                ]
+            )
+    source, out = _write(tmp_path / "t.csv", rows), tmp_path / "fits.csv"
+    trials.fit_file(source, out, key=jax.random.key(9), n_resamples=100)
+    groups = trials.group_trials(trials.read_trials(source))
+    with open(out, newline="") as file:
+        written = list(csv.DictReader(file))
+    assert list(written[0]) == list(trials.FIT_COLUMNS)
+    assert [(r["participant"], r["condition"]) for r in written] == list(
+        zip(groups.participant, groups.condition, strict=True)
+    )
+    n_yes, n_total = design.counts(A, t, responses)
+    np.testing.assert_array_equal(groups.n_yes, np.asarray(n_yes).reshape(4, 5))
+    np.testing.assert_array_equal(groups.n_total, np.asarray(n_total).reshape(4, 5))
+    np.testing.assert_allclose(groups.levels, np.broadcast_to(A.levels, (4, 5)), atol=1e-12)
+    wald = trials.fit_groups(groups, key=None, n_resamples=0)
+    np.testing.assert_allclose(wald.ci_high - wald.pse, 1.959964 * wald.se_pse, rtol=1e-6)
+    for r, pse in zip(written, wald.pse, strict=True):
+        assert float(r["pse"]) == pytest.approx(float(pse), rel=1e-9)
+        assert float(r["ci_low"]) < float(r["pse"]) < float(r["ci_high"])
+        assert r["converged"] == "true" and r["flags"] == ""
+    assert not list(tmp_path.glob("*.tmp"))
