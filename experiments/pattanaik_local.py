@@ -21,9 +21,7 @@ SHOWN_TIMES = (10.0, 12.0, 12.4, 12.8, 13.2, 14.0)
 
 def render(params, source, shown):
     """Display frames (linear) at the frame indices ``shown``."""
-    frames = {}
-    for idx, linear, _ in pipeline.chunks(op, params, source, size=48):
-        frames.update({i: linear[k] for k, i in enumerate(idx) if i in shown})
+    frames, _ = pipeline.collect(op, params, source, shown, size=48)
     return np.stack([frames[i] for i in sorted(shown)])
 
 

@@ -8,13 +8,10 @@ almost entirely white; the chart then re-emerges as the cones adapt
 ``diagnostics.csv``.
 """
 
-import csv
-
-import numpy as np
 from common import setup
 from matplotlib.figure import Figure
 
-from jaxadapt import display, figures, pipeline, scenes
+from jaxadapt import display, figures, io, pipeline, scenes
 from jaxadapt.operators import pattanaik2000 as op
 
 #: Times shown in the strip, s after the first (moonlit) frame.
@@ -28,13 +25,8 @@ def main():
     source = pipeline.from_scene(scene)
     params = op.Params(goal=scene.goal)
     shown = {int(round(t / 0.03)) for t in STRIP_TIMES}
-    frames, tables = {}, []
-    for idx, linear, table in pipeline.chunks(op, params, source, size=64):
-        tables.append(table)
-        for k, i in enumerate(idx):
-            if i in shown:
-                frames[i] = display.to_uint8(display.encode_srgb(linear[k]))
-    table = {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
+    linear, table = pipeline.collect(op, params, source, shown, size=64)
+    frames = {i: display.to_uint8(display.encode_srgb(f)) for i, f in linear.items()}
 
     fig = Figure(figsize=(2.2 * len(frames), 2.2))
     for ax, i in zip(fig.subplots(1, len(frames)), sorted(frames), strict=True):
@@ -44,11 +36,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "title_strip.png", dpi=110)
     figures.plot_adaptation(out / "adaptation.png", table, "title-page step, Pattanaik et al. 2000")
-    with open(out / "diagnostics.csv", "w", newline="") as f:
-        columns = [k for k in table if k != "curve"]
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        writer.writerows(zip(*(table[k] for k in columns), strict=True))
+    io.write_columns(out / "diagnostics.csv", table)
     print(f"wrote {out}/title_strip.png")
 
 

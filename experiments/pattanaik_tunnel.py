@@ -7,13 +7,11 @@ luminance) shows the adaptation state, as the graphs under Fig. 7 do.
 Writes ``tunnel_fig7.png``, ``adaptation.png`` and ``diagnostics.csv``.
 """
 
-import csv
-
 import numpy as np
 from common import setup
 from matplotlib.figure import Figure
 
-from jaxadapt import display, figures, pipeline, scenes
+from jaxadapt import display, figures, io, pipeline, scenes
 from jaxadapt.operators import pattanaik2000 as op
 
 #: Times shown, s: approach, entering, inside, nearing the exit, leaving.
@@ -28,13 +26,8 @@ def main():
     params = op.Params(goal=scene.goal, pixels_per_degree=scene.pixels_per_degree)
     fps = 1.0 / scene.dt[0]
     shown = {int(round(t * fps)) for t in SHOWN_TIMES}
-    frames, tables = {}, []
-    for idx, linear, table in pipeline.chunks(op, params, source, size=48):
-        tables.append(table)
-        for k, i in enumerate(idx):
-            if i in shown:
-                frames[i] = display.to_uint8(display.encode_srgb(linear[k]))
-    table = {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
+    linear, table = pipeline.collect(op, params, source, shown, size=48)
+    frames = {i: display.to_uint8(display.encode_srgb(f)) for i, f in linear.items()}
 
     fig = Figure(figsize=(2.6 * len(frames), 4.6))
     axes = fig.subplots(2, len(frames), height_ratios=(1, 1))
@@ -58,11 +51,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "tunnel_fig7.png", dpi=110)
     figures.plot_adaptation(out / "adaptation.png", table, "tunnel drive, Pattanaik et al. 2000")
-    with open(out / "diagnostics.csv", "w", newline="") as f:
-        columns = [k for k in table if k != "curve"]
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        writer.writerows(zip(*(table[k] for k in columns), strict=True))
+    io.write_columns(out / "diagnostics.csv", table)
     print(f"wrote {out}/tunnel_fig7.png")
 
 

@@ -229,16 +229,6 @@ def build_parser():
 # -- outputs ------------------------------------------------------------------
 
 
-def write_diagnostics(path, table):
-    """One row per frame: every per-frame column of the operator's diagnostics."""
-    columns = [name for name, column in table.items() if column.ndim == 1]
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        for i in range(len(table["t"])):
-            writer.writerow([f"{table[c][i]:.6g}" for c in columns])
-
-
 # -- the render command -------------------------------------------------------
 
 
@@ -344,8 +334,8 @@ def render(args, console):
                 send_video(coded)
                 tables.append(table)
                 progress.advance(task, len(idx))
-        table = {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
-        write_diagnostics(staging / "diagnostics.csv", table)
+        table = pipeline.concatenate(tables)
+        io.write_columns(staging / "diagnostics.csv", table)
         io.write_image(staging / "contact_sheet.png", figures.contact_sheet(np.stack(contact)))
         plot(staging / "adaptation.png", table)
         written = sorted(p.name for p in staging.iterdir())

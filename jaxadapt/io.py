@@ -6,6 +6,7 @@ file.
 """
 
 import contextlib
+import csv
 import os
 import tempfile
 import warnings
@@ -137,3 +138,18 @@ def video_writer(path, fps):
         finally:
             if writer is not None:
                 writer.close()
+
+
+def write_columns(path, table):
+    """Write the 1-D columns of ``table`` (a dict of equal-length arrays) as CSV.
+
+    One row per entry (per frame, for diagnostics), numbers to six
+    significant digits; columns of other ranks (e.g. sampled curves) are
+    left out. The file appears only once complete.
+    """
+    columns = [name for name, column in table.items() if np.ndim(column) == 1]
+    rows = zip(*(table[name] for name in columns), strict=True)
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        writer.writerows([f"{value:.6g}" for value in row] for row in rows)

@@ -169,6 +169,24 @@ def chunks(op, params, source, size=32, key=None):
         yield idx, np.asarray(out), table
 
 
+def concatenate(tables):
+    """One diagnostics table from the chunks' tables (dicts of columns)."""
+    return {name: np.concatenate([t[name] for t in tables]) for name in tables[0]}
+
+
+def collect(op, params, source, keep, size=32, key=None):
+    """Run ``op`` over ``source``; keep the display frames at indices ``keep``.
+
+    Returns ``({index: frame (H, W, 3)}, table)``: the kept frames and the
+    whole sequence's diagnostics (:func:`chunks`, :func:`concatenate`).
+    """
+    frames, tables = {}, []
+    for idx, out, table in chunks(op, params, source, size, key):
+        frames.update({i: out[k] for k, i in enumerate(idx) if i in keep})
+        tables.append(table)
+    return frames, concatenate(tables)
+
+
 def with_gaze(source, path):
     """``source`` with its gaze from a recording: a CSV of ``t, x, y`` rows.
 
