@@ -373,19 +373,12 @@ def tone_map(params, obs, rgb):
         params, L_rod, L_cone, obs.sigma_rod, obs.sigma_cone, obs.B_rod, obs.B_cone
     )
     L_d = display_luminance(params, obs.scale * R_lum + obs.offset)
-    exponent = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n) / display_slope(params)
-    gain = L_d / (params.white_factor * params.display_adaptation)
+    S_color = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n)
     positive = L_cone > 0
-    L_safe = jnp.where(positive, L_cone, 1.0)
-
-    def channel(c):
-        ratio = jnp.where(positive, c / L_safe, 1.0)
-        return jnp.clip(power(ratio, exponent) * gain, 0.0, 1.0)
-
-    # channel by channel on (..., H, W) planes: XLA vectorises these loops,
-    # where broadcasting per-pixel values over a trailing axis of 3 ran
-    # twice as slowly on the CPU
-    return jnp.stack([channel(rgb[..., i]) for i in range(3)], axis=-1)
+    ratio = jnp.where(positive[..., None], rgb / jnp.where(positive, L_cone, 1.0)[..., None], 1.0)
+    colour = power(ratio, (S_color / display_slope(params))[..., None])
+    white_d = params.white_factor * params.display_adaptation
+    return jnp.clip(colour * (L_d / white_d)[..., None], 0.0, 1.0)
 
 
 def curve(params, obs):
