@@ -232,6 +232,42 @@ def build_parser():
 # -- the render command -------------------------------------------------------
 
 
+#: Columns of ``group_test.csv``: each condition against the control.
+GROUP_TEST_COLUMNS = (
+    "condition",
+    "control",
+    "median",
+    "median_control",
+    "shift",
+    "rank_biserial",
+    "W",
+    "z",
+    "p",
+    "n",
+    "n_control",
+)
+
+
+@contextlib.contextmanager
+def _staged(out):
+    """Yield a staging folder inside ``out``; move its files into ``out`` on success.
+
+    On any error nothing reaches ``out`` (earlier results stay as they
+    were), and the staging folder is removed either way.
+    """
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
+    except OSError as e:
+        raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
+    try:
+        yield staging
+        for path in sorted(staging.iterdir()):
+            path.replace(out / path.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
 def _source(args):
     from jaxadapt import pipeline
     from jaxadapt.scenes import SCENES
@@ -298,19 +334,13 @@ def render(args, console):
     encode = (lambda J: J) if encoded else display.ENCODINGS[args.encoding]
 
     out = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
-    except OSError as e:
-        raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
-
     T = len(source.times)
     fps = 1.0 / float(np.median(source.dt))
     contact_idx = set(range(min(4, T))) | set(
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )
     contact, tables = [], []
-    try:
+    with _staged(out) as staging:
         with contextlib.ExitStack() as stack:
             send_video = (
                 stack.enter_context(io.video_writer(staging / "video.mp4", fps))
@@ -338,13 +368,9 @@ def render(args, console):
         io.write_columns(staging / "diagnostics.csv", table)
         io.write_image(staging / "contact_sheet.png", figures.contact_sheet(np.stack(contact)))
         plot(staging / "adaptation.png", table)
-        written = sorted(p.name for p in staging.iterdir())
-        for name in written:
-            (staging / name).replace(out / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        written = len(list(staging.iterdir()))
     console.print(
-        f"wrote {len(written)} files to {out}/ (diagnostics.csv, contact_sheet.png, "
+        f"wrote {written} files to {out}/ (diagnostics.csv, contact_sheet.png, "
         f"adaptation.png, {T} frames)"
     )
 
@@ -362,65 +388,43 @@ def psychometric_fit(args, console):
     groups = trials.group_trials(trials.read_trials(args.trials))
     table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
     out = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
-    except OSError as e:
-        raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
-    try:
+    condition = np.asarray(table.condition)
+    rows = []
+    for other in dict.fromkeys(table.condition):
+        if other == args.control or args.control not in condition:
+            continue
+        c = stats.compare(
+            jnp.asarray(table.pse[condition == other]),
+            jnp.asarray(table.pse[condition == args.control]),
+        )
+        rows.append(
+            {
+                "condition": other,
+                "control": args.control,
+                "median": float(c.median_x),
+                "median_control": float(c.median_y),
+                "shift": float(c.shift),
+                "rank_biserial": float(c.rank_biserial),
+                "W": float(c.test.statistic),
+                "z": float(c.test.z),
+                "p": float(c.test.p),
+                "n": int(c.test.n_x),
+                "n_control": int(c.test.n_y),
+            }
+        )
+    with _staged(out) as staging:
         trials.write_fits(staging / "fits.csv", table)
-        condition = np.asarray(table.condition)
-        rows = []
-        for other in dict.fromkeys(table.condition):
-            if other == args.control or args.control not in condition:
-                continue
-            c = stats.compare(
-                jnp.asarray(table.pse[condition == other]),
-                jnp.asarray(table.pse[condition == args.control]),
-            )
-            rows.append(
-                [
-                    other,
-                    args.control,
-                    float(c.median_x),
-                    float(c.median_y),
-                    float(c.shift),
-                    float(c.rank_biserial),
-                    float(c.test.statistic),
-                    float(c.test.z),
-                    float(c.test.p),
-                    int(c.test.n_x),
-                    int(c.test.n_y),
-                ]
-            )
         with open(staging / "group_test.csv", "w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(
-                [
-                    "condition",
-                    "control",
-                    "median",
-                    "median_control",
-                    "shift",
-                    "rank_biserial",
-                    "W",
-                    "z",
-                    "p",
-                    "n",
-                    "n_control",
-                ]
-            )
+            writer = csv.DictWriter(f, fieldnames=GROUP_TEST_COLUMNS)
+            writer.writeheader()
             writer.writerows(rows)
         figures.plot_psychometric(staging / "psychometric.png", groups, table)
         figures.plot_pse(staging / "pse.png", table)
-        for p in sorted(staging.iterdir()):
-            p.replace(out / p.name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     for row in rows:
         console.print(
-            f"{row[0]} vs {row[1]}: median PSE {row[2]:+.3f} vs {row[3]:+.3f} log units, "
-            f"rank-sum p = {row[8]:.3g} (n = {row[9]}, {row[10]})"
+            f"{row['condition']} vs {row['control']}: median PSE {row['median']:+.3f} vs "
+            f"{row['median_control']:+.3f} log units, rank-sum p = {row['p']:.3g} "
+            f"(n = {row['n']}, {row['n_control']})"
         )
     console.print(f"wrote fits.csv, group_test.csv, psychometric.png, pse.png to {out}/")
 
