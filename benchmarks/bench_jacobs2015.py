@@ -26,7 +26,7 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import machine, median_seconds, write_result
+from common import copy_bandwidth, machine, median_seconds, write_result
 
 from jaxadapt import scenes
 from jaxadapt.operators import jacobs2015 as op
@@ -67,6 +67,7 @@ def main():
     seconds = time_run(full, frames, gaze, args.repeats)
     no_acuity = time_run(dataclasses.replace(full, acuity=False), frames, gaze, args.repeats)
     bytes_per_frame = 18 * 4 * width * height
+    bandwidth = copy_bandwidth()
     record = {
         "machine": machine(args.device_label),
         "load_average_1min": os.getloadavg()[0],  # other work sharing the machine
@@ -78,6 +79,8 @@ def main():
         "no_acuity_fps": args.frames / no_acuity,
         "bytes_per_frame": bytes_per_frame,
         "full_GB_per_s": bytes_per_frame * args.frames / seconds / 1e9,
+        "copy_GB_per_s": bandwidth / 1e9,
+        "bandwidth_fraction": bytes_per_frame * args.frames / seconds / bandwidth,
     }
     label = args.device_label or record["machine"]["backend"]
     path = write_result(f"jacobs2015_{label}", record)

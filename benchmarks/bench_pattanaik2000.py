@@ -25,7 +25,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import machine, median_seconds, write_result
+from common import copy_bandwidth, machine, median_seconds, write_result
 
 from jaxadapt import io, scenes
 from jaxadapt.operators import pattanaik2000 as op
@@ -96,6 +96,7 @@ def main():
     ours = time_jaxadapt(frames, args.repeats)
     theirs = None if args.no_pfstmo else time_pfstmo(frames, args.repeats)
     bytes_moved = 2 * frames.nbytes  # read the frames, write the display frames
+    bandwidth = copy_bandwidth()
     record = {
         "machine": machine(args.label),
         "size": [width, height],
@@ -104,6 +105,8 @@ def main():
         "jaxadapt_seconds": ours,
         "jaxadapt_fps": args.frames / ours,
         "jaxadapt_GB_per_s": bytes_moved / ours / 1e9,
+        "copy_GB_per_s": bandwidth / 1e9,
+        "bandwidth_fraction": bytes_moved / ours / bandwidth,
         "pfstmo_core_seconds": theirs,
         "pfstmo_fps": None if theirs is None else args.frames / theirs,
         "speedup": None if theirs is None else theirs / ours,

@@ -28,6 +28,19 @@ def median_seconds(fn, repeats=5, warmup=1):
     return statistics.median(times)
 
 
+def copy_bandwidth(megabytes=1024, repeats=20):
+    """Memory bandwidth of the default device, bytes read plus written per second.
+
+    Times a jitted ``x + 1`` over ``megabytes`` of random float32 (one read
+    and one write of every element), the ceiling a memory-bound kernel on the
+    same device can reach, measured in the same run as the kernel it bounds.
+    """
+    x = jax.random.uniform(jax.random.key(0), (megabytes * 2**20 // 4,))
+    add = jax.jit(lambda x: x + 1)
+    seconds = median_seconds(lambda: jax.block_until_ready(add(x)), repeats=repeats, warmup=2)
+    return 2 * x.nbytes / seconds
+
+
 def machine(label=None):
     """What the numbers were measured on: CPU, cores, accelerator, versions."""
     cpu = platform.processor()

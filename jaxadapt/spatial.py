@@ -148,7 +148,7 @@ def _check_image(image, name="image"):
         raise ValueError(f"{name}: expected an array of shape (..., H, W), got shape {image.shape}")
 
 
-# -- box filters, low-pass stacks and band-pass images --------------------------
+# -- box filters and low-pass stacks ------------------------------------------------
 
 
 def _reflect_indices(n, r):
@@ -294,25 +294,6 @@ def lowpass_stack(image, radii, passes=3):
     array, shape (..., len(radii), H, W)
     """
     return jnp.stack([iterated_box_filter(image, r, passes) for r in radii], axis=-3)
-
-
-def dog_bands(stack):
-    """Band-pass (difference-of-low-pass) images of a :func:`lowpass_stack`.
-
-    ``band[i] = stack[i] - stack[i + 1]``, so that ``image = (image -
-    stack[0]) + sum(bands) + stack[-1]``: the image split into the detail
-    finer than the first level, one band per octave, and the coarsest
-    low-pass.
-
-    Parameters
-    ----------
-    stack : array, shape (..., K, H, W)
-
-    Returns
-    -------
-    array, shape (..., K - 1, H, W)
-    """
-    return stack[..., :-1, :, :] - stack[..., 1:, :, :]
 
 
 # -- bilateral filter (Eq 6.5) --------------------------------------------------

@@ -302,10 +302,27 @@ def test_acuity_loss_drops_fine_detail_first():
     assert np.all(np.diff(energy) > 0)
     assert energy[-1] == pytest.approx(_highpass_energy(image), rel=1e-3)
     # the coarsest band is kept down to rho = 0 and dropped below it
-    bands, lowpass = op.frequency_bands(p, image)
-    np.testing.assert_allclose(bands.sum(0) + lowpass, image, rtol=1e-12)
     thresholds = np.asarray(op.acuity_thresholds(p))
     assert thresholds[0] == pytest.approx(1.001) and thresholds[-1] == 0.0
+
+
+def test_acuity_loss_is_eq14_band_sum():
+    # Eq 14 written out: the low-pass plus each difference-of-Gaussian band
+    # where rho + g X exceeds its threshold; acuity_loss selects a blur instead.
+    p = op.Params()
+    image = texture() * 0.3
+    rho = op.local_rho(p, image)
+    X = op.acuity_noise(p, jax.random.key(3), jnp.float64(0.4), image.shape[:2])
+    chw = jnp.moveaxis(image, -1, 0)
+    stack = jnp.stack([chw] + [gaussian_blur(chw, s) for s in op.acuity_sigmas(p)])
+    bands = stack[:-1] - stack[1:]
+    keep = (rho + p.g * X)[None] > op.acuity_thresholds(p)[:, None, None]
+    reference = stack[-1] + jnp.sum(jnp.where(keep[:, None], bands, 0.0), axis=0)
+    ours = op.acuity_loss(p, image, rho, X)
+    assert 0 < float(keep.mean()) < 1  # some bands kept, some dropped
+    np.testing.assert_allclose(ours, jnp.moveaxis(reference, 0, -1), rtol=1e-10, atol=1e-14)
+    with pytest.raises(ValueError, match="rho_step"):
+        op.Params(rho_step=-0.1)
 
 
 def test_acuity_noise_is_standard_normal_and_smooth():

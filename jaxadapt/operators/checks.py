@@ -13,8 +13,18 @@ import jax.numpy as jnp
 
 
 def check_frames(frames, rank, name="frames"):
-    """Frames of linear RGB in cd/m2: shape ``(T, H, W, 3)`` (rank 4) or
-    ``(H, W, 3)`` (rank 3), floating point, finite and non-negative."""
+    """Check frames of linear RGB in cd/m2 and return their value guard.
+
+    The shape must be ``(T, H, W, 3)`` (rank 4) or ``(H, W, 3)`` (rank 3)
+    and the dtype floating point (``ValueError`` at once otherwise); the
+    values must be finite and non-negative. That value check is returned as
+    ``guard``, an exact zero scalar of the frames' dtype that raises when it
+    is computed on bad frames: add it to the operator's scalar state, which
+    every result depends on. Raising on the frames themselves
+    (``eqx.error_if(frames, ...)``) routes them through a conditional, and XLA
+    then copies the whole sequence: on a GPU that copy cost more than the
+    operator's own pixel work.
+    """
     if (
         frames.ndim != rank
         or frames.shape[-1] != 3
@@ -26,7 +36,8 @@ def check_frames(frames, rank, name="frames"):
             f"got {frames.dtype} of shape {frames.shape}"
         )
     bad = ~jnp.all(jnp.isfinite(frames) & (frames >= 0))
-    return eqx.error_if(frames, bad, f"{name}: expected finite, non-negative luminance (cd/m2)")
+    zero = jnp.zeros((), frames.dtype)
+    return eqx.error_if(zero, bad, f"{name}: expected finite, non-negative luminance (cd/m2)")
 
 
 def check_dt(dt, T):

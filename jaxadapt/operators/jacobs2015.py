@@ -89,7 +89,7 @@ from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, foveal_log_average
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton
-from jaxadapt.spatial import dog_bands, gaussian_blur
+from jaxadapt.spatial import check_value, gaussian_blur
 
 #: Appendix A: LMS bleaching deviations to RGB afterimage colour.
 H_AFTERIMAGE = np.array([[1.14, -1.18, 0.36], [-0.08, 1.02, 0.18], [0.30, -0.11, 1.25]])
@@ -234,6 +234,7 @@ class Params(eqx.Module):
             raise ValueError(
                 f"acuity_noise_cell: expected an int >= 1 pixels, got {self.acuity_noise_cell!r}"
             )
+        check_value("rho_step", self.rho_step, lambda v: v >= 0, ">= 0 log10 units")
         if not (self.afterimage_blur >= 0):
             raise ValueError(f"afterimage_blur: expected >= 0 pixels, got {self.afterimage_blur!r}")
 
@@ -404,20 +405,6 @@ def acuity_noise(params, key, t, shape):
     return Ay @ coarse @ Ax.T
 
 
-def frequency_bands(params, frame):
-    """Difference-of-Gaussian bands of ``frame (H, W, 3)``, finest first.
-
-    Returns ``(bands, lowpass)``: ``bands (K, H, W, 3)`` with
-    ``bands[0] = frame - blur(sigma_0)`` and
-    ``bands[f] = blur(sigma_(f-1)) - blur(sigma_f)``, and ``lowpass =
-    blur(sigma_(K-1))``; they sum to the frame.
-    """
-    image = jnp.moveaxis(frame, -1, 0)
-    blurred = [gaussian_blur(image, s) for s in acuity_sigmas(params)]
-    stack = jnp.stack([image, *blurred], axis=-3)
-    return jnp.moveaxis(dog_bands(stack), 0, -1), jnp.moveaxis(stack[:, -1], 0, -1)
-
-
 def acuity_thresholds(params):
     """Normalised threshold of each band, finest first: ``rho_(K-1-f) / (m1 - m2)``.
 
@@ -431,9 +418,15 @@ def acuity_thresholds(params):
 def acuity_loss(params, frame, rho, X):
     """Stochastic loss of acuity (Eqs 14-15), finest detail first.
 
-    ``G = lowpass + sum_f w_f G_f`` with ``w_f = (rho + g X > threshold_f)``
-    per pixel (:func:`acuity_thresholds`), clipped at 0 (dropping bands can
-    undershoot next to edges).
+    Eq 14 keeps the difference-of-Gaussian band ``f`` (0 = finest,
+    ``blur_(f-1) - blur_f`` with ``blur_(-1)`` the frame) where
+    ``rho + g X > threshold_f`` (:func:`acuity_thresholds`) and adds the
+    low-pass ``blur_(K-1)``. The thresholds fall with coarseness
+    (``rho_step >= 0``), so a pixel drops its ``d`` finest bands, and what it
+    keeps telescopes to ``blur_(d-1)``: the frame blurred at the finest
+    scale it still resolves. We select that blur per pixel, which gives
+    Eq 14's sum without forming the ``K`` band images. Blurs of a
+    non-negative frame are non-negative, so nothing undershoots.
 
     Parameters
     ----------
@@ -443,11 +436,19 @@ def acuity_loss(params, frame, rho, X):
         Local normalised log luminance (Eq 13, unclamped).
     X : array, (H, W)
         Standard normal noise (:func:`acuity_noise`).
+
+    Returns
+    -------
+    array, (H, W, 3)
+        The frame as resolved, cd/m2.
     """
-    bands, lowpass = frequency_bands(params, frame)
-    keep = (rho + params.g * X)[None] > acuity_thresholds(params)[:, None, None]
-    kept = jnp.sum(jnp.where(keep[..., None], bands, 0.0), axis=0)
-    return jnp.maximum(lowpass + kept, 0.0)
+    visible = rho + params.g * X
+    dropped = jnp.sum(visible[None] <= acuity_thresholds(params)[:, None, None], axis=0)
+    image = jnp.moveaxis(frame, -1, 0)
+    seen = image
+    for f, sigma in enumerate(acuity_sigmas(params)):
+        seen = jnp.where(dropped > f, gaussian_blur(image, sigma), seen)
+    return jnp.moveaxis(seen, 0, -1)
 
 
 def tone_map(params, scene, rho, sigma):
@@ -748,9 +749,10 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
 
 @eqx.filter_jit
 def _init(params, first_frame, gaze, key, adaptation):
-    first_frame = check_frames(first_frame, 3, "first_frame")
+    guard = check_frames(first_frame, 3, "first_frame")
     params = as_dtype(params, first_frame.dtype)
-    return _initial_state(params, first_frame, gaze, key, adaptation)
+    state = _initial_state(params, first_frame, gaze, key, adaptation)
+    return state._replace(A=state.A + guard)
 
 
 def diagnostics_table(diag):
@@ -807,12 +809,13 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze):
-    frame = check_frames(frame, 3, "frame")
+    guard = check_frames(frame, 3, "frame")
     if state.B.shape != frame.shape:
         raise ValueError(
             f"frame: expected the shape of the state's maps {state.B.shape}, got {frame.shape}"
         )
     params, state, dt = as_dtype((params, state, dt), frame.dtype)
+    state = state._replace(A=state.A + guard)
     dt = check_dt(dt, 1)[0]
     return _frame(params, state, frame, dt, gaze)
 
@@ -865,12 +868,13 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
 
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, key, state):
-    frames = check_frames(frames, 4)
+    guard = check_frames(frames, 4)
     params, state, dt = as_dtype((params, state, dt), frames.dtype)
     T = frames.shape[0]
     dt = check_dt(dt, T)
     if state is None:
         state = _initial_state(params, frames[0], gaze[0], key)
+    state = state._replace(A=state.A + guard)
 
     def scan_step(s, inputs):
         s, out, record = _frame(params, s, *inputs)

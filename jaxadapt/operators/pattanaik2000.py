@@ -461,9 +461,10 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     if adaptation is not None:
         A = jnp.asarray(adaptation, dtype=jnp.result_type(float))
         return static_state(params, A, A)
-    first_frame = check_frames(first_frame, 3, "first_frame")
+    guard = check_frames(first_frame, 3, "first_frame")
     gaze = _centre(first_frame) if gaze is None else gaze
-    return static_state(params, *frame_goals(params, first_frame, gaze))
+    G_rod, G_cone = frame_goals(params, first_frame, gaze)
+    return static_state(params, G_rod + guard, G_cone + guard)
 
 
 def _probe(x, gaze):
@@ -520,8 +521,9 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze):
-    frame = check_frames(frame, 3, "frame")
+    guard = check_frames(frame, 3, "frame")
     params, state, dt, gaze = as_dtype((params, state, dt, gaze), frame.dtype)
+    state = jax.tree.map(lambda s: s + guard, state)
     dt = check_dt(dt, 1)[0]
     gaze = _centre(frame) if gaze is None else gaze
     state, out, _ = _show(params, state, frame, dt, gaze)
@@ -570,7 +572,7 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
 
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, state):
-    frames = check_frames(frames, 4)
+    guard = check_frames(frames, 4)
     params, state, dt, gaze = as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
     dt = check_dt(dt, T)
@@ -581,7 +583,7 @@ def _run(params, frames, dt, gaze, state):
     G_rod, G_cone = frame_goals(params, frames[0], gaze[0])
     if state is None:
         state = static_state(params, G_rod, G_cone)
-    state = jax.tree.map(lambda s: jnp.broadcast_to(s, G_cone.shape), state)
+    state = jax.tree.map(lambda s: jnp.broadcast_to(s + guard, G_cone.shape), state)
 
     def scan_step(s, inputs):
         s, out, record = _show(params, s, *inputs)
