@@ -237,3 +237,50 @@ def norm_cdf(z):
     from scipy.special import ndtr
 
     return ndtr(z)
+
+
+def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
+    sim, out = tmp_path / "sim", tmp_path / "fit"
+    args = ["psychometric", "simulate", "--protocol", "afterimage", "--observers", "6"]
+    status, err = _run(
+        capsys, *args, "--weight", "afterimage=0.3", "--seed", "1", "--out", str(sim)
+    )
+    assert status == 0, err
+    observers = list(csv.DictReader(open(sim / "observers.csv")))
+    assert len(observers) == 6 and all(float(o["weight_afterimage"]) == 0.3 for o in observers)
+    included = [o["participant"] for o in observers if o["excluded"] == "false"]
+    # a strong afterimage with a positive weight: the observer's own PSE moves left
+    assert all(float(o["pse_manipulated"]) < float(o["pse_control"]) for o in observers)
+    stimuli = list(csv.DictReader(open(sim / "stimuli.csv")))
+    assert len(stimuli) == 10 and {s["condition"] for s in stimuli} == {"control", "manipulated"}
+    status, err = _run(
+        capsys,
+        "psychometric",
+        "fit",
+        str(sim / "trials.csv"),
+        "--resamples",
+        "0",
+        "--out",
+        str(out),
+    )
+    assert status == 0, err
+    fits = list(csv.DictReader(open(out / "fits.csv")))
+    assert [f["participant"] for f in fits] == [p for p in included for _ in range(2)]
+    assert all(f["converged"] == "true" for f in fits)
+    assert not [p for p in sim.iterdir() if p.name.startswith(".")]  # no staging left
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--protocol", "glare", "--observers", "3"], ["--protocol", "glare", "afterimage"]),
+        (["--protocol", "mesopic", "--observers", "0"], ["--observers", "0"]),
+        (["--protocol", "mesopic", "--observers", "3", "--weight", "glow=1"], ["--weight"]),
+        (["--protocol", "mesopic", "--observers", "3", "--weight", "blur=x"], ["--weight"]),
+    ],
+)
+def test_psychometric_simulate_bad_input(tmp_path, capsys, args, words):
+    out = tmp_path / "o"
+    status, err = _run(capsys, "psychometric", "simulate", *args, "--out", str(out))
+    _assert_one_line_error(status, err, *words)
+    assert not out.exists()
