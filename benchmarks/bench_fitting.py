@@ -1,0 +1,276 @@
+"""Fitting t0 and tau of 1,000 observers: one vmapped call against a SciPy loop.
+
+The model is the threshold time course of ``experiments/fit_time_constants.py``
+(a uniform field: 1e6 cd/m2 pre-adaptation, then 30 min dark, 30 s at 0.03
+cd/m2 and 5 min at 1000 cd/m2; log10 increment thresholds from the 2000
+operator's state, ``pattanaik2000.run``, by the chapter's response-to-threshold
+relation), 90 thresholds per observer. Each simulated observer has its own
+t0_rod, t0_cone, tau_rod and tau_cone (the paper's values times log-normal
+factors, 20 %) and Gaussian noise of 0.05 log units.
+
+* jaxadapt: :func:`jaxadapt.fitting.fit` of the four constants (in log
+  units) for all observers in one call: Levenberg-Marquardt with exact
+  forward-mode Jacobians through ``run``, vmapped over observers.
+* peer: a loop of ``scipy.optimize.least_squares`` (``method="lm"``, MINPACK,
+  Jacobians by two-point finite differences, its default tolerances) on the
+  same residuals of the same model, evaluated by the same jitted JAX function
+  one observer at a time, in the same log parameters from the same start.
+
+* second peer: the same SciPy loop on the model as written, not jitted as
+  a whole (``pattanaik2000.run`` compiles itself, the parameter glue around
+  it runs eagerly): what a first SciPy wrapper of the model costs.
+* jaxadapt in float32 (float64 switched off), the library's default
+  precision, compared with the float64 estimates in standard errors.
+
+Compilation is excluded (each compiled function is called once first), JAX
+results are ``block_until_ready``-ed and the median of the repeats is kept.
+The SciPy loops fit the first ``--peer`` (all 1,000 by default) and
+``--eager-peer`` (20) observers once; a subset scales linearly, recorded as
+such. The estimates are compared where both fits converged. Both sides stop
+by MINPACK's ``ftol = 1e-8`` test (jaxadapt's LevenbergMarquardt adds it to
+optimistix's own tests).
+
+Usage::
+
+    python benchmarks/bench_fitting.py [--observers 1000] [--peer 1000]
+                                       [--eager-peer 20] [--repeats 3]
+
+Writes ``benchmarks/results/fitting.json``.
+"""
+
+import argparse
+import os
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the same float64 model on both sides
+
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+from common import machine, median_seconds, write_result  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+from jaxadapt import fitting  # noqa: E402
+from jaxadapt.operators import pattanaik2000 as op  # noqa: E402
+from jaxadapt.physiology.response import naka_rushton, power, sigma_cone, sigma_rod  # noqa: E402
+
+NAMES = ("t0_rod", "t0_cone", "tau_rod", "tau_cone")
+#: (luminance cd/m2, duration s, thresholds) of each step, after 1e6 cd/m2.
+STEPS = ((1e-6, 1800.0, 40), (0.03, 30.0, 20), (1e3, 300.0, 30))
+PRE, DELTA, NOISE = 1e6, 0.01, 0.05
+
+
+def protocol():
+    L, dt = [], []
+    for lum, duration, count in STEPS:
+        starts = np.concatenate([[0.0], np.geomspace(0.01, duration, count)])
+        L.append(np.full(count, lum))
+        dt.append(np.diff(starts))
+    return jnp.asarray(np.concatenate(L)), jnp.asarray(np.concatenate(dt)), jnp.asarray(PRE)
+
+
+def sensitivity(L_b, sigma, B, n):
+    """``1 / dL`` of the response-to-threshold relation (as in the experiment)."""
+    R = naka_rushton(L_b, sigma, B, n) + DELTA
+    return n * power(B - R, (n + 1.0) / n) / (DELTA * sigma * B * power(R, (1.0 - n) / n))
+
+
+def log_threshold(params, args):
+    """log10 threshold (cd/m2) at each frame, rods and cones pooled (as in the experiment)."""
+    L, dt, pre = args
+    frames = jnp.broadcast_to(L[:, None, None, None], (L.shape[0], 1, 1, 3))
+    _, diag = op.run(params, frames, dt, state=op.static_state(params, pre, pre))
+    s = diag.state
+    rod = sensitivity(L, sigma_rod(s.A_rod, params.n), s.B_rod, params.n)
+    cone = sensitivity(L, sigma_cone(s.A_cone, params.n), s.B_cone, params.n)
+    return -0.25 * jnp.log10(jnp.maximum(rod**4 + cone**4, 1e-32))
+
+
+def with_log(log_values):
+    """The paper's Params with the four constants set to ``exp(log_values)``."""
+    values = jnp.exp(log_values)
+    return eqx.tree_at(lambda p: [getattr(p, n) for n in NAMES], op.Params(), list(values))
+
+
+def simulate(observers, args, seed=0):
+    rng = np.random.default_rng(seed)
+    base = np.log([float(getattr(op.Params(), n)) for n in NAMES])
+    truth = base + 0.2 * rng.standard_normal((observers, len(NAMES)))
+    clean = jax.jit(jax.vmap(lambda v: log_threshold(with_log(v), args)))(jnp.asarray(truth))
+    data = np.asarray(clean) + NOISE * rng.standard_normal(clean.shape)
+    return np.exp(truth), data
+
+
+def scipy_loop(data, args, jit=True):
+    """Fit each observer with MINPACK's LM and finite-difference Jacobians.
+
+    ``jit``: the whole model (parameters to thresholds) compiled as one
+    function, the fastest way to give SciPy the model; otherwise the model
+    as written, called eagerly (``pattanaik2000.run`` compiles itself, the
+    glue around it runs op by op), as a SciPy user might first wrap it.
+    """
+
+    def model(v):
+        return log_threshold(with_log(v), args)
+
+    model = jax.jit(model) if jit else model
+    x0 = np.log([float(getattr(op.Params(), n)) for n in NAMES])
+    model(jnp.asarray(x0)).block_until_ready()  # compile outside the timing
+    estimates, ok, costs, evaluations = [], [], [], [0]
+
+    def residuals(v, row):
+        evaluations[0] += 1
+        return np.asarray(model(jnp.asarray(v))) - row
+
+    start = time.perf_counter()
+    for row in data:
+        result = least_squares(residuals, x0, jac="2-point", method="lm", args=(row,))
+        estimates.append(np.exp(result.x))
+        ok.append(result.success)
+        costs.append(result.cost)
+    seconds = time.perf_counter() - start
+    return np.array(estimates), np.array(ok), np.array(costs), seconds, evaluations[0]
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--observers", type=int, default=1000)
+    parser.add_argument("--peer", type=int, default=1000, help="observers fitted by SciPy")
+    parser.add_argument(
+        "--eager-peer", type=int, default=20, help="observers fitted by SciPy on the eager model"
+    )
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--label", default=None, help="machine label in the record")
+    args = parser.parse_args()
+
+    model_args = protocol()
+    truth, data = simulate(args.observers, model_args)
+    data = jnp.asarray(data)
+    start = op.Params()
+
+    def run():
+        return jax.block_until_ready(
+            fitting.fit(log_threshold, start, NAMES, data, args=model_args)
+        )
+
+    t = time.perf_counter()
+    fits = run()
+    first_s = time.perf_counter() - t
+    jax_s = median_seconds(run, repeats=args.repeats, warmup=0)
+    ours = np.stack([np.asarray(fits.estimate[n]) for n in NAMES], -1)
+    converged = np.asarray(fits.converged)
+
+    # float32, the library's default precision (float64 switched off here).
+    with jax.enable_x64(False):
+        data32 = jnp.asarray(np.asarray(data), jnp.float32)
+        args32 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), model_args)
+
+        def run32():
+            return jax.block_until_ready(
+                fitting.fit(log_threshold, op.Params(), NAMES, data32, args=args32)
+            )
+
+        fits32 = run32()
+        f32_s = median_seconds(run32, repeats=args.repeats, warmup=0)
+        ours32 = np.stack([np.asarray(fits32.estimate[n], float) for n in NAMES], -1)
+        se64 = np.stack([np.asarray(fits.se[n]) for n in NAMES], -1)
+        f32_vs_f64 = np.abs(ours32 - ours) / se64
+
+    peer = min(args.peer, args.observers)
+    theirs, peer_ok, cost, peer_s, evaluations = scipy_loop(np.asarray(data[:peer]), model_args)
+    peer_per_fit = peer_s / peer
+    eager = min(args.eager_peer, args.observers)
+    *_, eager_s, eager_evaluations = scipy_loop(np.asarray(data[:eager]), model_args, jit=False)
+    eager_per_fit = eager_s / eager
+    both = converged[:peer] & peer_ok
+    rel = np.abs(ours[:peer] / theirs - 1)[both]
+    se = np.stack([np.asarray(fits.se[n]) for n in NAMES], -1)[:peer][both]
+    in_se = np.abs(ours[:peer] - theirs)[both] / se
+    recovered = np.abs(np.log(ours / truth))
+    # Where the estimates differ by more than 0.01 standard errors the two
+    # solvers ended in different minima: which found the lower sum of squares?
+    apart = np.flatnonzero(both)[np.max(in_se, axis=-1) > 0.01]
+    lower = np.asarray(fits.loss)[:peer][apart] < cost[apart] * (1 - 1e-9)
+    record = {
+        "benchmark": "least-squares fits of t0 and tau (rods, cones) to 90 log thresholds "
+        "from pattanaik2000.run, one per simulated observer",
+        "observers": args.observers,
+        "repeats": args.repeats,
+        "jaxadapt": {
+            "seconds": jax_s,
+            "first_call_seconds": first_s,
+            "fits_per_second": args.observers / jax_s,
+            "converged_fraction": float(converged.mean()),
+            "median_steps": float(np.median(np.asarray(fits.steps))),
+            "method": "fitting.fit: optimistix LevenbergMarquardt, forward-mode Jacobians, "
+            "log parameters, vmapped over observers, float64",
+        },
+        "jaxadapt_float32": {
+            "seconds": f32_s,
+            "fits_per_second": args.observers / f32_s,
+            "converged_fraction": float(np.mean(np.asarray(fits32.converged))),
+            "median_steps": float(np.median(np.asarray(fits32.steps))),
+            "max_difference_from_float64_in_standard_errors": float(np.max(f32_vs_f64)),
+            "method": "the same call on float32 data and model (float64 off)",
+        },
+        "scipy": {
+            "version": scipy.__version__,
+            "observers": peer,
+            "seconds": peer_s,
+            "seconds_per_fit": peer_per_fit,
+            "seconds_for_all_observers": peer_per_fit * args.observers,
+            "scaled_from_subset": peer < args.observers,
+            "fits_per_second": 1.0 / peer_per_fit,
+            "model_evaluations_per_fit": evaluations / peer,
+            "model_seconds_per_evaluation": peer_s / evaluations,
+            "converged_fraction": float(peer_ok.mean()),
+            "method": "least_squares(method='lm', jac='2-point'), default tolerances, "
+            "one observer at a time, same jitted model and log parameters",
+        },
+        "scipy_eager_model": {
+            "observers": eager,
+            "seconds": eager_s,
+            "seconds_per_fit": eager_per_fit,
+            "seconds_for_all_observers": eager_per_fit * args.observers,
+            "scaled_from_subset": eager < args.observers,
+            "model_evaluations_per_fit": eager_evaluations / eager,
+            "method": "as 'scipy', but the model function not jitted as a whole: "
+            "pattanaik2000.run compiles itself, the glue around it runs eagerly",
+        },
+        "speedup": peer_per_fit * args.observers / jax_s,
+        "speedup_float32": peer_per_fit * args.observers / f32_s,
+        "speedup_vs_eager_model": eager_per_fit * args.observers / jax_s,
+        "agreement": {
+            "compared_observers": int(both.sum()),
+            "median_relative_difference": float(np.median(rel)),
+            "max_relative_difference": float(np.max(rel)),
+            "max_difference_in_standard_errors": float(np.max(in_se)),
+            "fraction_within_1e-4_relative": float(np.mean(np.all(rel < 1e-4, axis=-1))),
+            "observers_apart_by_more_than_0.01_se": int(apart.size),
+            "of_which_jaxadapt_has_the_lower_sum_of_squares": int(lower.sum()),
+        },
+        "recovery_median_abs_log_error": dict(
+            zip(NAMES, np.median(recovered, axis=0).round(4).tolist(), strict=True)
+        ),
+        "machine": {**machine(args.label), "load_average_1min": os.getloadavg()[0]},
+    }
+    print(write_result("fitting", record))
+    print(
+        f"float32: {args.observers} fits in {f32_s:.2f} s ({record['speedup_float32']:.1f}x); "
+        f"scipy on the eager model: {eager_per_fit * 1e3:.0f} ms a fit "
+        f"({record['speedup_vs_eager_model']:.0f}x)"
+    )
+    print(
+        f"jaxadapt: {args.observers} fits in {jax_s:.2f} s ({args.observers / jax_s:,.0f} fits/s, "
+        f"first call {first_s:.1f} s); scipy: {peer_per_fit * 1e3:.1f} ms a fit "
+        f"({peer} fitted); speed-up {record['speedup']:.1f}x; estimates agree to "
+        f"{record['agreement']['max_relative_difference']:.1e} relative (max), "
+        f"{record['agreement']['max_difference_in_standard_errors']:.1e} standard errors"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,470 @@
+"""Fitting parameters through the simulator (jaxadapt.fitting).
+
+Peers: float64 central finite differences for the gradients (through
+``pattanaik2000.run`` and through the diffrax path), SciPy's ``curve_fit``
+and a hand-written ``s^2 (J'J)^-1`` for least-squares estimates and their
+covariance, and statsmodels' probit GLM (the paper's ``glmfit``) for maximum
+likelihood. The time-course model is a small version of
+``experiments/fit_time_constants.py``: increment thresholds during dark and
+light adaptation from the 2000 operator's state. Shapes and static options
+are kept few so that the file compiles each fit once.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import statsmodels.api as sm
+from scipy.optimize import curve_fit
+from scipy.special import gammaln
+from scipy.stats import norm
+
+from jaxadapt import fitting
+from jaxadapt.operators import pattanaik2000 as op
+from jaxadapt.physiology import kinetics
+from jaxadapt.physiology.response import naka_rushton, power, sigma_cone, sigma_rod
+from jaxadapt.physiology.threshold import increment_threshold
+
+NAMES = ("t0_rod", "t0_cone", "tau_rod", "tau_cone")
+DELTA = 0.01
+
+
+# -- the threshold time course ------------------------------------------------
+
+
+def _protocol(steps):
+    """Luminance and frame durations of a stepped uniform field: frames start
+    at 0 and then geometrically from 10 ms to the end of each step."""
+    L, dt = [], []
+    for lum, duration, count in steps:
+        starts = np.concatenate([[0.0], np.geomspace(0.01, duration, count)])
+        L.append(np.full(count, lum))
+        dt.append(np.diff(starts))
+    return jnp.asarray(np.concatenate(L)), jnp.asarray(np.concatenate(dt))
+
+
+#: A viewer adapted to 1e6 cd/m2, 10 min in the dark, 10 s at 0.03 cd/m2
+#: (rods), 60 s at 1000 cd/m2 (cones): 44 thresholds.
+L_STEPS, DT_STEPS = _protocol([(1e-6, 600.0, 20), (0.03, 10.0, 12), (1e3, 60.0, 12)])
+ARGS = (L_STEPS, DT_STEPS, jnp.asarray(1e6))
+#: The same frames on a field that never changes: nothing adapts.
+FLAT_ARGS = (jnp.full_like(L_STEPS, 1e3), DT_STEPS, jnp.asarray(1e3))
+
+
+def _sensitivity(L_b, sigma, B, n):
+    """``1 / dL`` of the chapter's response-to-threshold relation, 0 when saturated."""
+    R = naka_rushton(L_b, sigma, B, n) + DELTA
+    return n * power(B - R, (n + 1) / n) / (DELTA * sigma * B * power(R, (1 - n) / n))
+
+
+def states(params, G_rod, G_cone, dt, pre):
+    """The 2000 operator's state over frames with goals ``G_rod, G_cone``
+    (cd/m2) held for ``dt`` (s), from full adaptation to ``pre``: its exact
+    kinetics (``pattanaik2000.advance``) scanned over the frames, which is
+    what ``run`` computes (checked below) without its pixel map, so that the
+    fits here compile quickly."""
+
+    def body(state, frame):
+        return op.advance(params, state, *frame), state
+
+    return jax.lax.scan(body, op.static_state(params, pre, pre), (G_rod, G_cone, dt))[1]
+
+
+def log_threshold(params, args):
+    """log10 threshold (cd/m2) at each frame, rod and cone sensitivities pooled
+    (Minkowski exponent 4, as in the experiment)."""
+    L, dt, pre = args
+    s, n = states(params, L, L, dt, pre), params.n
+    rod = _sensitivity(L, sigma_rod(s.A_rod, n), s.B_rod, n)
+    cone = _sensitivity(L, sigma_cone(s.A_cone, n), s.B_cone, n)
+    return -0.25 * jnp.log10(jnp.maximum(rod**4 + cone**4, 1e-32))
+
+
+TRUTH = op.Params()
+START = op.Params(t0_rod=0.3, t0_cone=0.04, tau_rod=250.0, tau_cone=200.0)
+
+
+def _log_params(params):
+    return jnp.log(jnp.array([getattr(params, n) for n in NAMES]))
+
+
+def _with_log(v):
+    return eqx.tree_at(lambda p: [getattr(p, n) for n in NAMES], TRUTH, list(jnp.exp(v)))
+
+
+def _check_gradient(f, x, h, forward=True, rtol=1e-6):
+    """Reverse- (and forward-) mode derivatives of the scalar ``f`` (which
+    returns ``(value, aux)``) at ``x`` against central differences of step
+    ``h``, from one compiled function (compiling is the cost here). Returns
+    the aux at ``x``."""
+
+    @jax.jit
+    def derivatives(x):
+        (value, aux), rev = jax.value_and_grad(f, has_aux=True)(x)
+        fwd = jax.jacfwd(lambda x: f(x)[0])(x) if forward else rev
+        return value, rev, fwd, aux
+
+    _, rev, fwd, aux = derivatives(x)
+    steps = h * np.eye(x.size)
+    fd = np.array([derivatives(x + e)[0] - derivatives(x - e)[0] for e in steps]) / (2 * h)
+    assert np.all(np.abs(fd) > 1e-3)  # every parameter matters
+    np.testing.assert_allclose(rev, fd, rtol=rtol)
+    np.testing.assert_allclose(fwd, fd, rtol=rtol)
+    return aux
+
+
+# -- gradients ----------------------------------------------------------------
+
+
+def test_sensitivity_is_the_reciprocal_of_the_chapters_threshold():
+    L = jnp.array([0.0, 1e-3, 1.0, 100.0])
+    sigma, B = jnp.array([1e-3, 2.0, 50.0, 300.0]), jnp.array([0.05, 0.5, 1.0, 0.9])
+    np.testing.assert_allclose(
+        1 / _sensitivity(L, sigma, B, 0.73),
+        increment_threshold(L, sigma, DELTA, B, 0.73),
+        rtol=1e-12,
+    )
+    saturated = _sensitivity(jnp.asarray(1e4), 1.0, 0.9, 0.73)
+    assert float(saturated) == 0.0
+    assert float(jax.grad(lambda s: _sensitivity(1e4, s, 0.9, 0.73))(1.0)) == 0.0
+
+
+def test_gradient_through_run_matches_finite_differences():
+    # Thresholds from the state ``run`` reports over the stepped field, in
+    # forward and reverse mode (the display output's gradient is checked in
+    # test_pattanaik2000.py); a random weighted sum is the scalar checked.
+    frames = jnp.broadcast_to(L_STEPS[:, None, None, None], (L_STEPS.size, 1, 1, 3))
+    weights = jax.random.normal(jax.random.key(0), L_STEPS.shape)
+
+    def thresholds(v):
+        params = _with_log(v)
+        pre = jnp.asarray(1e6)
+        _, diag = op.run(params, frames, DT_STEPS, state=op.static_state(params, pre, pre))
+        s, n = diag.state, params.n
+        rod = _sensitivity(diag.G_rod, sigma_rod(s.A_rod, n), s.B_rod, n)
+        cone = _sensitivity(diag.G_cone, sigma_cone(s.A_cone, n), s.B_cone, n)
+        return jnp.dot(weights, jnp.log10(rod**4 + cone**4)), diag.state
+
+    v = _log_params(op.Params(t0_rod=0.17, t0_cone=0.07, tau_rod=380.0, tau_cone=120.0))
+    seen = _check_gradient(thresholds, v, 1e-6)
+    # The fits below use the operator's kinetics without its pixel map: run's own state.
+    ours = states(_with_log(v), L_STEPS, L_STEPS, DT_STEPS, 1e6)
+    for a, b in zip(ours, seen, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+
+
+def test_gradient_through_the_diffrax_path_matches_finite_differences():
+    # Rod pigment under a goal that rises from 0.01 to 5 cd/m2 in 2 s, solved
+    # by diffrax (Kvaerno5; reverse mode only). The adaptive solution moves by
+    # ~1e-10 when a parameter change alters the steps taken (its error is
+    # ~3e-10 here even at rtol 1e-12), so the differences take a step of 1e-3,
+    # where that noise is ~1e-7; with 1e-5 it would be ~1e-5 and swamp the
+    # comparison. (The gradient also matches differences of SciPy's DOP853.)
+    ts = jnp.linspace(0.0, 20.0, 16)
+    goal = kinetics.goal_path(jnp.array([0.0, 2.0, 20.0]), jnp.array([1e-2, 5.0, 5.0]))
+    weights = jax.random.normal(jax.random.key(1), ts.shape)
+
+    def model(v):
+        tau, c = jnp.exp(v)
+        args = (goal, tau, c)
+        B = kinetics.integrate(kinetics.bleaching_rhs, 0.5, ts, args, rtol=1e-12, atol=1e-14)
+        return jnp.dot(weights, jnp.log(B)), None
+
+    _check_gradient(model, jnp.log(jnp.array([40.0, 16.0])), 1e-3, forward=False, rtol=1e-5)
+
+
+# -- recovery, flags and masks on the threshold time course --------------------
+#
+# Every fit of the time course below has data of shape (4, 44) and the same
+# names: one compilation serves them all.
+
+HOLES = np.array([0, 7, 19, 30, 43])
+
+
+@pytest.fixture(scope="module")
+def course():
+    """Rows: noiseless, two noisy (0.05 log units), noiseless with 5 NaNs."""
+    rng = np.random.default_rng(3)
+    clean = np.asarray(log_threshold(TRUTH, ARGS))
+    data = np.stack([clean, *(clean + 0.05 * rng.standard_normal((2, clean.size))), clean])
+    data[3, HOLES] = np.nan
+    with pytest.warns(UserWarning, match="data: 5 of 176 measurements are not finite"):
+        fit = fitting.fit(log_threshold, START, NAMES, data, args=ARGS)
+    return data, fit
+
+
+def test_recovers_known_parameters_from_noiseless_data(course):
+    _, f = course
+    assert bool(f.converged[0]) and bool(f.solved[0]) and 0 < int(f.steps[0]) < 100
+    for name in NAMES:
+        assert float(f.estimate[name][0]) == pytest.approx(float(getattr(TRUTH, name)), rel=1e-6)
+        assert float(f.se[name][0]) < 1e-6 * float(getattr(TRUTH, name))
+    assert float(jnp.abs(f.residuals[0]).max()) < 1e-8
+    assert float(f.params.t0_cone[0]) == pytest.approx(0.08, rel=1e-6)  # the full Params back
+    assert float(f.params.c_rod[0]) == 16.0  # a field held fixed
+
+
+def test_noisy_recovery_lies_within_its_standard_errors(course):
+    data, f = course
+    rows = slice(1, 3)
+    assert np.all(f.converged[rows])
+    z = np.array([(f.estimate[n][rows] - getattr(TRUTH, n)) / f.se[n][rows] for n in NAMES])
+    assert np.all(np.abs(z) < 4), z
+    assert np.all(np.abs(z) > 1e-3)  # the noise did move the estimates
+    # The residuals estimate the noise: 0.05 log units.
+    sd = np.sqrt(2 * np.asarray(f.loss[rows]) / (data.shape[1] - len(NAMES)))
+    np.testing.assert_allclose(sd, 0.05, rtol=0.35)
+    np.testing.assert_allclose(f.residuals[rows], f.prediction[rows] - data[rows], atol=1e-12)
+    corr = np.asarray(f.correlation)
+    assert corr.shape == (4, 4, 4)
+    np.testing.assert_allclose(corr, np.swapaxes(corr, -1, -2), atol=1e-12)
+    assert np.all(np.abs(corr) <= 1 + 1e-12)
+    se = np.sqrt(np.diagonal(np.asarray(f.cov[1])))
+    np.testing.assert_allclose(se, [float(f.se[n][1]) for n in NAMES], rtol=1e-12)
+
+
+def test_nan_measurements_are_masked_and_said(course):
+    data, f = course  # the fixture checked the warning
+    np.testing.assert_array_equal(f.n_masked, [0, 0, 0, 5])
+    np.testing.assert_array_equal(~np.asarray(f.mask[3]), np.isin(np.arange(44), HOLES))
+    assert np.all(np.asarray(f.residuals[3])[HOLES] == 0.0)
+    assert bool(f.converged[3])
+    for name in NAMES:
+        assert float(f.estimate[name][3]) == pytest.approx(float(getattr(TRUTH, name)), rel=1e-6)
+    for leaf in jax.tree.leaves(f):
+        assert not np.any(np.isnan(np.asarray(leaf)))
+    # Weight 0 on arbitrary values is the same fit, and the other rows of the
+    # batch do not change.
+    weights = np.ones_like(data)
+    weights[3, HOLES] = 0.0
+    g = fitting.fit(
+        log_threshold, START, NAMES, np.nan_to_num(data, nan=99.0), args=ARGS, weights=weights
+    )
+    np.testing.assert_array_equal(g.n_masked, f.n_masked)
+    for name in NAMES:
+        np.testing.assert_allclose(g.estimate[name], f.estimate[name], rtol=1e-12)
+
+
+def test_flat_data_are_flagged_and_finite():
+    # On a field that never changes A = G throughout, so t0 has no effect,
+    # and the rods are saturated, so tau_rod has none either. Only tau_cone
+    # acts, through the static cone bleach B = 1 / (1 + G tau / c).
+    data = np.broadcast_to(np.asarray(log_threshold(TRUTH, FLAT_ARGS)), (4, 44))
+    assert np.ptp(data) == 0.0
+    f = fitting.fit(log_threshold, START, NAMES, data, args=FLAT_ARGS)
+    assert not np.any(f.converged)
+    for name in ("t0_rod", "t0_cone", "tau_rod"):
+        assert np.all(np.asarray(f.se[name]) == np.inf)
+        np.testing.assert_allclose(f.estimate[name], getattr(START, name), rtol=1e-6)
+    assert np.all(np.isfinite(f.se["tau_cone"]))
+    np.testing.assert_allclose(f.estimate["tau_cone"], 110.0, rtol=1e-4)
+    for leaf in jax.tree.leaves(f):
+        assert not np.any(np.isnan(np.asarray(leaf)))
+    assert np.all(np.isfinite(f.residuals)) and np.all(np.isfinite(f.loss))
+    corr = np.asarray(f.correlation)
+    assert np.all(np.isfinite(corr)) and np.all(corr[:, 0, 3] == 0.0)
+
+
+def test_bad_input_is_named():
+    data = np.zeros(44)
+    with pytest.raises(ValueError, match=r"data: expected shape \(\.\.\., 44\).*got shape \(43,\)"):
+        fitting.fit(log_threshold, START, NAMES, np.zeros(43), args=ARGS)
+    with pytest.raises(ValueError, match=r"got shape \(44, 2\)"):
+        fitting.fit(log_threshold, START, NAMES, np.zeros((44, 2)), args=ARGS)
+    with pytest.raises(ValueError, match="'t0_cones' is not a parameter of Params") as error:
+        fitting.fit(log_threshold, START, ("t0_rod", "t0_cones"), data, args=ARGS)
+    for name in NAMES + ("c_rod", "n", "white_factor"):
+        assert name in str(error.value)  # the valid names are listed
+    with pytest.raises(ValueError, match="'goal' is not a parameter.*valid names: n, t0_rod"):
+        fitting.fit(log_threshold, START, "goal", data, args=ARGS)
+    with pytest.raises(ValueError, match="names: expected each parameter once"):
+        fitting.fit(log_threshold, START, ("t0_rod", "t0_rod"), data, args=ARGS)
+    with pytest.raises(ValueError, match="names: expected at least one"):
+        fitting.fit(log_threshold, START, (), data, args=ARGS)
+    with pytest.raises(ValueError, match=r"params.t0_rod: the start must lie strictly inside"):
+        fitting.fit(log_threshold, START, "t0_rod", data, args=ARGS, bounds={"t0_rod": (0, 0.2)})
+    with pytest.raises(ValueError, match=r"bounds\['t0_rod'\]: expected \(low, high\)"):
+        fitting.fit(log_threshold, START, "t0_rod", data, args=ARGS, bounds={"t0_rod": (1, 0)})
+    with pytest.raises(ValueError, match=r"bounds: \['c_rod'\] are not among"):
+        fitting.fit(log_threshold, START, "t0_rod", data, args=ARGS, bounds={"c_rod": None})
+    with pytest.raises(ValueError, match="weights: expected a shape that broadcasts"):
+        fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=np.ones(3))
+    with pytest.raises(ValueError, match="jac: expected 'fwd' or 'bwd'"):
+        fitting.fit(log_threshold, START, NAMES, data, args=ARGS, jac="central")
+    with pytest.raises(ValueError, match="params: expected a parameter module"):
+        fitting.fit(log_threshold, {"t0_rod": 0.1}, "t0_rod", data, args=ARGS)
+    with pytest.raises(ValueError, match="model: expected a function returning one array"):
+        fitting.fit(lambda p, a: (p.t0_rod, p.t0_cone), START, "t0_rod", data)
+
+
+# -- the mechanism on a small model -------------------------------------------
+
+
+class Decay(eqx.Module):
+    """``y = a exp(-t / b) + c``."""
+
+    a: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
+    b: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
+    c: jax.Array = eqx.field(default=0.0, converter=jnp.asarray)
+
+
+def decay(params, t):
+    return params.a * jnp.exp(-t / params.b) + params.c
+
+
+T = jnp.linspace(0.0, 4.0, 25)
+ABC = ("a", "b", "c")
+UNBOUNDED_C = {"c": None}
+SD = 0.05
+
+
+def _scipy(data, **kw):
+    return curve_fit(
+        lambda t, a, b, c: a * np.exp(-t / b) + c, np.asarray(T), data, p0=(1, 1, 0), **kw
+    )
+
+
+@pytest.fixture(scope="module")
+def decays():
+    """Three noisy decays (a = 2, b = 0.7, c = 0.3, sd 0.05) and their fit."""
+    rng = np.random.default_rng(0)
+    data = 2.0 * np.exp(-np.asarray(T) / 0.7) + 0.3 + SD * rng.standard_normal((3, T.size))
+    return data, fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
+
+
+def test_least_squares_matches_scipy_curve_fit(decays):
+    data, f = decays
+    assert np.all(f.converged)
+    for i in range(3):
+        popt, pcov = _scipy(data[i])
+        # Both stop by MINPACK's ftol (1e-8): the same estimates to far below
+        # their standard errors.
+        est = np.array([float(f.estimate[n][i]) for n in ABC])
+        assert np.all(np.abs(est - popt) < 1e-3 * np.sqrt(np.diag(pcov)))
+        # MINPACK's covariance comes from its last Jacobian, near the estimate.
+        np.testing.assert_allclose(np.asarray(f.cov[i]), pcov, rtol=1e-4)
+        # At the estimate itself: s^2 (J'J)^-1 with J by hand, in natural units.
+        a, b, c = (float(f.estimate[n][i]) for n in ABC)
+        t = np.asarray(T)
+        J = np.stack([np.exp(-t / b), a * t / b**2 * np.exp(-t / b), np.ones_like(t)], -1)
+        r = a * np.exp(-t / b) + c - data[i]
+        cov = np.linalg.inv(J.T @ J) * (r @ r) / (t.size - 3)
+        np.testing.assert_allclose(np.asarray(f.cov[i]), cov, rtol=1e-9)
+        np.testing.assert_allclose([f.se[n][i] for n in ABC], np.sqrt(np.diag(cov)), rtol=1e-9)
+    # Known noise: weights 1/sd^2 and absolute_sigma, forward and reverse mode.
+    kw = dict(args=T, bounds=UNBOUNDED_C, weights=np.full(T.size, SD**-2), absolute_sigma=True)
+    fwd = fitting.fit(decay, Decay(), ABC, data, **kw)
+    bwd = fitting.fit(decay, Decay(), ABC, data, jac="bwd", **kw)
+    _, pcov = _scipy(data[0], sigma=np.full(T.size, SD), absolute_sigma=True)
+    np.testing.assert_allclose(np.asarray(fwd.cov[0]), pcov, rtol=1e-4)
+    for name in ABC:
+        assert np.all(np.abs(fwd.estimate[name] - f.estimate[name]) < 1e-3 * f.se[name])
+        np.testing.assert_allclose(bwd.estimate[name], fwd.estimate[name], rtol=1e-7)
+        np.testing.assert_allclose(bwd.se[name], fwd.se[name], rtol=1e-6)
+
+
+def test_vmapped_fits_equal_looped_fits(decays):
+    data, batch = decays
+    for i in range(3):
+        single = fitting.fit(decay, Decay(), ABC, data[i], args=T, bounds=UNBOUNDED_C)
+        assert single.estimate["a"].shape == ()
+        for name in ABC:
+            assert float(single.estimate[name]) == pytest.approx(
+                float(batch.estimate[name][i]), rel=1e-9
+            )
+            assert float(single.se[name]) == pytest.approx(float(batch.se[name][i]), rel=1e-7)
+        assert int(single.steps) == int(batch.steps[i])
+        assert bool(single.converged) == bool(batch.converged[i])
+
+
+def test_bounds_are_respected(decays):
+    data, unbounded = decays
+    # Rows 0-1 as before; row 2 decays with b = 5, above the upper bound 2:
+    # its estimate presses against the bound from inside and stays finite.
+    slow = 2.0 * np.exp(-np.asarray(T) / 5.0) + 0.3
+    rows = np.stack([data[0], data[1], slow])
+    f = fitting.fit(decay, Decay(), ABC, rows, args=T, bounds={"b": (0.1, 2.0), "c": None})
+    b = np.asarray(f.estimate["b"])
+    assert 1.99 < b[2] < 2.0
+    for leaf in jax.tree.leaves(f):
+        assert not np.any(np.isnan(np.asarray(leaf)))
+    # Inside the bounds: the unbounded fit, standard errors through the
+    # logistic map's derivative included.
+    for name in ABC:
+        gap = np.abs(f.estimate[name][:2] - unbounded.estimate[name][:2])
+        assert np.all(gap < 1e-3 * unbounded.se[name][:2])
+        np.testing.assert_allclose(f.se[name][:2], unbounded.se[name][:2], rtol=1e-3)
+
+
+class Psychometric(eqx.Module):
+    pse: jax.Array = eqx.field(default=0.0, converter=jnp.asarray)
+    sigma: jax.Array = eqx.field(default=0.2, converter=jnp.asarray)
+
+
+def _binomial_nll(p, y):
+    """Negative log-likelihood of a proportion ``y`` of one trial."""
+    p = jnp.clip(p, 1e-12, 1 - 1e-12)
+    return -(y * jnp.log(p) + (1 - y) * jnp.log1p(-p))
+
+
+def _cumulative_gaussian(params, x):
+    return jax.scipy.stats.norm.cdf((x - params.pse) / params.sigma)
+
+
+def test_maximum_likelihood_matches_statsmodels_probit():
+    # The paper's glmfit probit, P(x) = Phi((x - pse) / sigma), fitted by
+    # binomial maximum likelihood; statsmodels gives (b0, b1) = (-pse/sigma,
+    # 1/sigma) and their observed-information covariance.
+    levels = np.log10(np.array([14.0, 19, 27, 35, 49]) / 27)
+    rng = np.random.default_rng(4)
+    n = np.full((3, 5), 30)
+    k = rng.binomial(n, norm.cdf((levels - 0.03) / 0.15))
+    ours = fitting.fit(
+        _cumulative_gaussian,
+        Psychometric(),
+        ("pse", "sigma"),
+        k / n,
+        args=jnp.asarray(levels),
+        weights=n,
+        nll=_binomial_nll,
+        bounds={"pse": None},
+    )
+    assert np.all(ours.converged)
+    family = sm.families.Binomial(link=sm.families.links.Probit())
+    for i in range(3):
+        glm = sm.GLM(np.c_[k[i], n[i] - k[i]], sm.add_constant(levels), family=family)
+        ref = glm.fit(tol=1e-14, maxiter=1000)
+        b0, b1 = ref.params
+        cov = np.linalg.inv(-glm.hessian(ref.params, observed=True))
+        # pse = -b0/b1 and sigma = 1/b1: the delta method by hand.
+        G = np.array([[-1 / b1, b0 / b1**2], [0.0, -1 / b1**2]])
+        se = np.sqrt(np.diag(G @ cov @ G.T))
+        est = [float(ours.estimate["pse"][i]), float(ours.estimate["sigma"][i])]
+        np.testing.assert_allclose(est, [-b0 / b1, 1 / b1], rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose([ours.se["pse"][i], ours.se["sigma"][i]], se, rtol=1e-5)
+        log_binomial = np.sum(gammaln(n[i] + 1) - gammaln(k[i] + 1) - gammaln(n[i] - k[i] + 1))
+        assert float(ours.loss[i]) == pytest.approx(log_binomial - ref.llf, rel=1e-9)
+
+
+def test_float32_follows_the_data_and_another_batch_does_not_retrace(decays, monkeypatch):
+    data, f64 = decays
+    # The library default: float64 off, everything in float32.
+    with jax.enable_x64(False):
+        kw = dict(args=jnp.asarray(T, jnp.float32), bounds=UNBOUNDED_C)
+        f32 = fitting.fit(decay, Decay(), ABC, data.astype(np.float32), **kw)
+        assert f32.estimate["b"].dtype == jnp.float32 and f32.se["b"].dtype == jnp.float32
+        assert np.all(f32.converged)
+        for name in ABC:
+            np.testing.assert_allclose(f32.estimate[name], f64.estimate[name], rtol=1e-3)
+            np.testing.assert_allclose(f32.se[name], f64.se[name], rtol=1e-2)
+        traces = []
+        original = fitting._fit_one
+
+        def counting(*args, **kwargs):
+            traces.append(1)
+            return original(*args, **kwargs)
+
+        monkeypatch.setattr(fitting, "_fit_one", counting)
+        fitting.fit(decay, Decay(), ABC, data.astype(np.float32) + 0.01, **kw)
+        assert traces == []
