@@ -1,11 +1,13 @@
 """Experiment designs (§4.1.1, §4.2.1 of the 2015 paper) and trial tables."""
 
 import csv
+import itertools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -70,6 +72,56 @@ def test_order_within_blocks_is_uniformly_random():
     assert np.all(np.abs(counts - 400) < 4 * np.sqrt(2000 * 0.2 * 0.8))
     # and the test comes first in about half of the trials at any position
     assert abs(np.asarray(t.test_first[:, 100]).mean() - 0.5) < 0.05
+
+
+def test_every_order_of_a_block_is_equally_likely():
+    # A block of 5 trials (5 levels, one repetition): its 120 orders over
+    # 24,000 sequences, against the uniform distribution.
+    five = design.Protocol(
+        name="five", standard=27.0, tests=A.tests, blocks=(design.Block("b", (("control", 1),)),)
+    )
+    t = jax.jit(jax.vmap(lambda k: design.trial_list(five, k)))(
+        jax.random.split(jax.random.key(6), 24_000)
+    )
+    index = {order: i for i, order in enumerate(itertools.permutations(range(5)))}
+    seen = np.bincount([index[tuple(row)] for row in np.asarray(t.level_index)], minlength=120)
+    assert scipy.stats.chisquare(seen).pvalue > 1e-3
+    # A block of 200 (the paper's main block): any entry lands at each
+    # position equally often, and two entries come in either order equally
+    # often, over 4000 shuffles.
+    n = 200
+    words = jax.random.bits(jax.random.key(7), (4000, design._rounds(n), n), jnp.uint32)
+    order = np.asarray(jax.jit(jax.vmap(lambda w: design._shuffle(w, n)))(words))
+    assert np.all(np.sort(order, axis=1) == np.arange(n))
+    for entry in (0, 137, 199):
+        position = np.argmax(order == entry, axis=1)
+        assert scipy.stats.chisquare(np.bincount(position // 10, minlength=20)).pvalue > 1e-3
+    before = np.argmax(order == 0, axis=1) < np.argmax(order == 1, axis=1)
+    assert abs(before.mean() - 0.5) < 4 * np.sqrt(0.25 / 4000)
+
+
+def test_coin_tosses_are_fair_and_do_not_depend_on_the_order():
+    # Odd cells: the extra trial's order is a fair coin, whatever position
+    # it lands at (the coin and the shuffle share one draw of random words).
+    odd = design.Protocol(
+        name="odd",
+        standard=1.0,
+        tests=(0.5, 2.0),
+        blocks=(design.Block("only", (("control", 3),)),),
+    )
+    t = jax.jit(jax.vmap(lambda k: design.trial_list(odd, k)))(
+        jax.random.split(jax.random.key(8), 8000)
+    )
+    first = np.asarray(t.test_first)[:, :, None] == [True, False]
+    level = np.asarray(t.level_index)
+    # per level: 1 or 2 of 3 trials show the test first; the count is 2 with
+    # probability 1/2 whatever the order of the trials
+    twos = np.stack([first[..., 0][level == i].reshape(-1, 3).sum(1) == 2 for i in range(2)])
+    assert np.all(np.abs(twos.mean(1) - 0.5) < 4 * np.sqrt(0.25 / 8000))
+    early = level[:, 0] == 0  # level 0 shown first
+    for i in range(2):
+        for group in (early, ~early):
+            assert abs(twos[i][group].mean() - 0.5) < 4 * np.sqrt(0.25 / group.sum())
 
 
 def test_odd_repetitions_are_balanced_up_to_one_trial():

@@ -1,5 +1,7 @@
 """Group statistics against SciPy: the rank-sum test of §4.1.2 and §4.2.2."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,8 +25,14 @@ def _padded(values):
 
 @jax.jit
 def _tests(x, x_mask, y, y_mask):
-    kw = dict(x_mask=x_mask, y_mask=y_mask)
+    kw = dict(x_mask=x_mask, y_mask=y_mask, method="asymptotic")
     return stats.ranksum(x, y, **kw), stats.ranksum(x, y, continuity=False, **kw)
+
+
+@jax.jit
+def _exact_and_auto(x, x_mask, y, y_mask):
+    kw = dict(x_mask=x_mask, y_mask=y_mask)
+    return stats.ranksum(x, y, method="exact", **kw), stats.ranksum(x, y, **kw)
 
 
 @given(samples, samples)
@@ -39,6 +47,126 @@ def test_ranksum_matches_scipy_mannwhitneyu_with_ties(x, y):
             assert float(result.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-15)
         else:
             assert float(result.p) == 1.0 and float(result.z) == 0.0
+        assert not bool(result.exact)
+
+
+@given(samples, samples)
+def test_exact_and_auto_match_scipy_mannwhitneyu(x, y):
+    # Masked (sizes known at run time only), with and without ties: SciPy's
+    # exact method (no tie correction, U rounded down) and its automatic
+    # choice (exact when a group has at most 8 values and nothing is tied).
+    exact, auto = _exact_and_auto(*_padded(x), *_padded(y))
+    ref = scipy.stats.mannwhitneyu(x, y, method="exact")
+    assert float(exact.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
+    assert bool(exact.exact)
+    tied = len(set(x + y)) < len(x + y)
+    assert bool(auto.exact) == (min(len(x), len(y)) <= 8 and not tied)
+    if len(set(x + y)) > 1:  # SciPy gives NaN when every value is tied
+        ref = scipy.stats.mannwhitneyu(x, y, method="auto")
+        assert float(auto.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
+
+
+@given(
+    st.lists(st.floats(-1, 1, allow_subnormal=False), min_size=2, max_size=30, unique=True),
+    st.data(),
+)
+def test_exact_without_masks_matches_scipy(values, data):
+    # Static sizes (one stored distribution), no ties, up to 29 against 1.
+    n_x = data.draw(st.integers(1, len(values) - 1))
+    x, y = values[:n_x], values[n_x:]
+    r = stats.ranksum(jnp.array(x), jnp.array(y), method="exact")
+    ref = scipy.stats.mannwhitneyu(x, y, method="exact")
+    assert float(r.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
+    auto = stats.ranksum(jnp.array(x), jnp.array(y))
+    ref = scipy.stats.mannwhitneyu(x, y, method="auto")
+    assert float(auto.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
+    assert bool(auto.exact) == (min(len(x), len(y)) <= 8)
+
+
+def test_papers_mesopic_p_is_the_exact_p_of_complete_separation():
+    # §4.2.2: p = 2.84e-6, two-sided, with all 11 manipulated PSEs above all
+    # 11 control ones: 2 of the C(22, 11) equally likely arrangements are as
+    # extreme.
+    rng = np.random.default_rng(2)
+    control = rng.normal(0.0, 0.03, 11)
+    mesopic = control.max() + 0.01 + rng.exponential(0.1, 11)
+    exact = stats.ranksum(jnp.array(mesopic), jnp.array(control), method="exact")
+    assert float(exact.u) == 121.0 and bool(exact.exact)
+    assert float(exact.p) == pytest.approx(2 / math.comb(22, 11), rel=1e-12)
+    assert f"{float(exact.p):.2e}" == "2.84e-06"
+    assert float(exact.p) == pytest.approx(
+        scipy.stats.mannwhitneyu(mesopic, control, method="exact").pvalue, rel=1e-12
+    )
+    # The same in float32, and with the groups swapped.
+    x32, y32 = jnp.array(mesopic, jnp.float32), jnp.array(control, jnp.float32)
+    assert float(stats.ranksum(y32, x32, method="exact").p) == pytest.approx(2.835142e-6, 1e-6)
+    # SciPy's automatic choice, like MATLAB's default, is the approximation at
+    # 11 against 11, which cannot go below 8.15e-5.
+    auto = stats.ranksum(jnp.array(mesopic), jnp.array(control))
+    assert not bool(auto.exact)
+    ref = scipy.stats.mannwhitneyu(mesopic, control, method="auto").pvalue
+    assert float(auto.p) == pytest.approx(ref, rel=1e-9)
+    assert float(auto.p) == pytest.approx(8.1515e-5, rel=1e-4)
+
+
+def test_exact_approaches_the_asymptotic_p_for_large_groups():
+    # The continuity-corrected normal approximation is off by O(1 / N) in p:
+    # at most a few thousandths at 20 against 25, less at 150 against 150.
+    rng = np.random.default_rng(3)
+    worst = {}
+    for n, m in ((20, 25), (150, 150)):
+        worst[n] = 0.0
+        for shift in np.linspace(0.0, 0.6, 13):
+            x, y = rng.normal(shift, 1, n), rng.normal(0, 1, m)
+            exact = stats.ranksum(jnp.array(x), jnp.array(y), method="exact")
+            auto = stats.ranksum(jnp.array(x), jnp.array(y))
+            assert bool(exact.exact) and not bool(auto.exact)  # both groups larger than 8
+            ref = scipy.stats.mannwhitneyu(x, y, method="exact").pvalue
+            assert float(exact.p) == pytest.approx(ref, rel=1e-9, abs=1e-300)
+            worst[n] = max(worst[n], abs(float(auto.p) - float(exact.p)))
+    assert worst[20] < 5e-3 and worst[150] < 1e-3 and worst[150] < worst[20]
+
+
+def test_exact_batches_with_masks_equal_a_loop_and_vmap():
+    rng = np.random.default_rng(4)
+    x, y = rng.normal(0.8, 1, size=(300, 12)), rng.normal(size=(300, 10))
+    x_mask, y_mask = rng.random((300, 12)) < 0.6, rng.random((300, 10)) < 0.6
+    for method in ("exact", "auto"):
+        batch = jax.jit(
+            lambda *a, m=method: stats.ranksum(*a[:2], x_mask=a[2], y_mask=a[3], method=m)
+        )(x, y, x_mask, y_mask)
+        vmapped = jax.vmap(
+            lambda *a, m=method: stats.ranksum(*a[:2], x_mask=a[2], y_mask=a[3], method=m)
+        )(x, y, x_mask, y_mask)
+        np.testing.assert_allclose(vmapped.p, batch.p, rtol=1e-12)
+        for i in range(0, 300, 23):
+            xi, yi = x[i][x_mask[i]], y[i][y_mask[i]]
+            if not len(xi) or not len(yi):
+                assert float(batch.p[i]) == 1.0
+                continue
+            ref = scipy.stats.mannwhitneyu(xi, yi, method=method).pvalue
+            assert float(batch.p[i]) == pytest.approx(ref, rel=1e-9)
+    assert 0 < np.mean(batch.exact) < 1  # auto: both methods occur in the batch
+
+
+def test_exact_tables_have_limits_and_methods_are_named():
+    big = jnp.linspace(0, 1, 400)
+    with pytest.raises(ValueError, match="method='exact'.*use method='asymptotic'"):
+        stats.ranksum(big[:200], big[200:], method="exact")
+    with pytest.raises(ValueError, match="method: expected 'auto', 'exact' or 'asymptotic'"):
+        stats.ranksum(big[:3], big[3:6], method="permutation")
+    # Masked groups padded past the table's limit: auto falls back to the
+    # approximation for every element and says so.
+    x, y = jnp.linspace(0, 1, 9), jnp.linspace(2, 3, 800)
+    r = stats.ranksum(x, y, x_mask=jnp.arange(9) < 5, y_mask=jnp.arange(800) < 700)
+    assert not bool(r.exact)
+    ref = scipy.stats.mannwhitneyu(np.asarray(x[:5]), np.asarray(y[:700]), method="asymptotic")
+    assert float(r.p) == pytest.approx(ref.pvalue, rel=1e-9)
+    # Unmasked, the same sizes need one distribution: exact, as SciPy's auto.
+    r = stats.ranksum(x[:5], y[:700])
+    assert bool(r.exact)
+    ref = scipy.stats.mannwhitneyu(np.asarray(x[:5]), np.asarray(y[:700]))
+    assert float(r.p) == pytest.approx(ref.pvalue, rel=1e-9)
 
 
 @given(
@@ -63,7 +191,7 @@ def test_paper_sized_groups_and_effect_sizes():
     control = rng.normal(0.0, 0.05, 11)
     mesopic = rng.normal(0.13, 0.05, 11)
     c = stats.compare(jnp.array(mesopic), jnp.array(control))
-    ref = scipy.stats.mannwhitneyu(mesopic, control, method="asymptotic")
+    ref = scipy.stats.mannwhitneyu(mesopic, control, method="auto")  # asymptotic at 11
     assert float(c.test.p) == pytest.approx(ref.pvalue, rel=1e-9)
     assert float(c.test.p) < 1e-3
     assert float(c.median_x) == pytest.approx(np.median(mesopic))
@@ -81,7 +209,7 @@ def test_masks_equal_the_subsets_and_batches_equal_a_loop():
     batch = jax.jit(stats.compare)(x, y, x_mask=x_mask, y_mask=y_mask)
     for i in range(0, 200, 40):
         xi, yi = x[i][x_mask[i]], y[i][y_mask[i]]
-        ref = scipy.stats.mannwhitneyu(xi, yi, method="asymptotic")
+        ref = scipy.stats.mannwhitneyu(xi, yi)  # auto: exact where a group has <= 8
         assert float(batch.test.p[i]) == pytest.approx(ref.pvalue, rel=1e-9)
         assert float(batch.test.n_x[i]) == len(xi)
         assert float(batch.median_x[i]) == pytest.approx(np.median(xi))
@@ -97,9 +225,15 @@ def test_empty_group_and_no_variation_give_no_evidence():
     assert float(empty.rank_biserial) == 0.0
     assert np.isnan(float(empty.median_y)) and np.isnan(float(empty.shift))
     tied = stats.ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2))
-    assert float(tied.p) == 1.0
+    assert float(tied.p) == 1.0 and not bool(tied.exact)  # auto: tied, asymptotic
+    assert float(stats.ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2), method="exact").p) == 1.0
+    for method in ("auto", "exact"):
+        empty = stats.ranksum(x, jnp.array([0.5, 0.6]), y_mask=jnp.zeros(2, bool), method=method)
+        assert float(empty.p) == 1.0
 
 
 def test_float32_stays_float32():
-    r = stats.ranksum(jnp.array([0.1, 0.3], jnp.float32), jnp.array([0.2, 0.0], jnp.float32))
-    assert r.p.dtype == jnp.float32 and r.z.dtype == jnp.float32
+    x, y = jnp.array([0.1, 0.3], jnp.float32), jnp.array([0.2, 0.0], jnp.float32)
+    for method in ("auto", "exact", "asymptotic"):
+        r = stats.ranksum(x, y, method=method)
+        assert r.p.dtype == jnp.float32 and r.z.dtype == jnp.float32

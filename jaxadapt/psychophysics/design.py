@@ -226,18 +226,68 @@ def _schedule(protocol):
     return tuple(np.asarray(column, dtype=np.int32) for column in zip(*rows, strict=True))
 
 
+def _segments(block):
+    """``(start, stop)`` of each run of equal values in the static ``block`` column."""
+    edges = np.flatnonzero(np.diff(block)) + 1
+    return tuple(zip((0, *edges), (*edges, len(block)), strict=True))
+
+
+def _index_bits(n):
+    """Bits that hold an index into ``n`` entries."""
+    return int(max(n, 1) - 1).bit_length()
+
+
+def _rounds(n):
+    """Sorting rounds of :func:`_shuffle` for ``n`` entries.
+
+    A round gives each entry ``32 - b`` random bits (``b`` =
+    :func:`_index_bits`). Enough rounds that these add up to at least 32
+    bits, and to ``3 log2 n`` (the rule of :func:`jax.random.permutation`).
+    """
+    b = _index_bits(n)
+    if b > 24:
+        raise ValueError(f"blocks: expected at most {2**24} trials in a block, got {n}")
+    return 0 if n < 2 else -(-max(32, 3 * b) // (32 - b))
+
+
+def _shuffle(words, n):
+    """A uniformly random permutation of ``arange(n)`` (int32) from random
+    ``words``, uint32 of shape ``(rounds, n)`` with ``rounds >=``
+    :func:`_rounds`, of which the low :func:`_index_bits` bits are unused.
+
+    Each round keeps the high ``32 - b`` bits of a word per entry, puts the
+    entry itself in the low ``b`` bits and sorts these words: one
+    single-operand integer sort, which XLA's CPU backend runs several times
+    faster than a key-value sort (``argsort``, or ``jax.random.permutation``
+    then a stable sort). Entries whose random bits tie in a round come out
+    in the order of their low bits, but a given pair ties in every round
+    with probability at most ``2**-32``.
+    """
+    b = _index_bits(n)
+    low = jnp.uint32(2**b - 1)
+    order = jnp.arange(n, dtype=jnp.uint32)
+    for r in range(_rounds(n)):
+        order = jnp.sort((words[r] & ~low) | order) & low
+    return order.astype(jnp.int32)
+
+
 @eqx.filter_jit
 def _trial_list(protocol, key):
-    block, condition, level_index, repetition, repetitions = (
-        jnp.asarray(c) for c in _schedule(protocol)
+    columns = _schedule(protocol)
+    block, condition, level_index, repetition, repetitions = (jnp.asarray(c) for c in columns)
+    # Blocks are contiguous in the schedule: shuffle each one in place. One
+    # draw of random words for all of them; bit 0 of the first round's words,
+    # never part of a sort key (blocks of one trial are not sorted), gives
+    # the coin tosses.
+    segments = _segments(columns[0])
+    rounds = max([1, *(_rounds(stop - start) for start, stop in segments)])
+    words = jax.random.bits(key, (rounds, block.shape[0]), jnp.uint32)
+    order = jnp.concatenate(
+        [start + _shuffle(words[:, start:stop], stop - start) for start, stop in segments]
     )
-    order_key, coin_key = jax.random.split(key)
-    # A uniform permutation, then a stable sort by block: random within blocks.
-    perm = jax.random.permutation(order_key, block.shape[0])
-    order = perm[jnp.argsort(block[perm], stable=True)]
     # Alternate the order within each cell; an odd cell's last trial is a coin toss.
     last_odd = (repetition == repetitions - 1) & (repetitions % 2 == 1)
-    coin = jax.random.bernoulli(coin_key, 0.5, block.shape)
+    coin = (words[0] & 1).astype(bool)
     test_first = jnp.where(last_odd, coin, repetition % 2 == 0)
     levels = jnp.asarray(protocol.levels, dtype=jnp.result_type(float))
     tests = jnp.asarray(protocol.tests, dtype=levels.dtype)

@@ -10,20 +10,46 @@ and ``vmap``), and optional masks mark the valid entries, so that groups of
 different sizes (participants excluded in some simulated experiments) share
 one array shape.
 
+The p-value of the rank-sum test comes from the exact null distribution of
+the statistic or from its normal approximation, as SciPy's ``mannwhitneyu``
+does (``method="auto"``, ``"exact"``, ``"asymptotic"``; see
+:func:`ranksum`). The paper's mesopic p = 2.84e-6 is an exact one:
+2 / C(22, 11) = 2.835e-6, the two-sided p of 11 manipulated PSEs that all
+lie above 11 control ones, which ``ranksum(..., method="exact")`` gives (no
+other outcome with groups of at most 11 gives 2.84e-6, although §4.2.1
+excludes one more of the 11 participants from this analysis, which would
+leave 10). The normal approximation cannot go below 8.15e-5 for two groups
+of 11 (7.11e-5 without the continuity correction), and it is what both
+SciPy's automatic choice and MATLAB's default pick at that size (SciPy:
+exact only when a group has at most 8 values; MATLAB: when
+``min(n_x, n_y) < 10`` and ``n_x + n_y < 20``): the paper's value needs the
+exact test asked for.
+
 References
 ----------
 Jacobs et al. (2015), ACM TOG 34(3), §4.1.2, §4.2.2
 (``shared/seeds/004_*.txt``). Hollander, Wolfe, Chicken (2014),
 *Nonparametric Statistical Methods*, 3rd ed., §4.1 (rank-sum test, ties) and
-§4.2 (Hodges-Lehmann shift).
+§4.2 (Hodges-Lehmann shift). Mann and Whitney (1947), *Ann. Math. Statist.*
+18, 50-60 (the recursion of the exact null distribution).
 """
 
+import functools
 from functools import partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import ndtr
+
+#: ``method="auto"`` uses the exact null distribution when the smaller group
+#: has at most this many values and there are no ties (SciPy's rule).
+AUTO_EXACT_MAX = 8
+#: Limits of a table of exact tail probabilities: entries stored, and
+#: multiply-adds to build it.
+_MAX_TABLE = 2**22
+_MAX_WORK = 2**29
 
 
 class RankSum(NamedTuple):
@@ -42,6 +68,9 @@ class RankSum(NamedTuple):
         Two-sided p-value.
     n_x, n_y : array
         Group sizes (valid entries).
+    exact : array of bool
+        Whether ``p`` comes from the exact null distribution (else from the
+        normal approximation).
     """
 
     statistic: jax.Array
@@ -50,6 +79,7 @@ class RankSum(NamedTuple):
     p: jax.Array
     n_x: jax.Array
     n_y: jax.Array
+    exact: jax.Array
 
 
 class Comparison(NamedTuple):
@@ -103,8 +133,92 @@ def _ranks(values, valid):
     return (below + (tied + 1) / 2).astype(values.dtype), tied
 
 
-def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True):
-    """Two-sided Wilcoxon rank-sum test, normal approximation.
+def _table_cost(s_lo, s_hi, l_lo, l_hi):
+    """Entries :func:`_tail_table` holds (the larger of its result and its
+    working array) and multiply-adds to build it."""
+    working = (s_hi + 1) * (s_hi * l_hi + 1)
+    work = s_hi * (s_hi + 1) * l_hi * (l_hi + 1) // 4
+    if working > _MAX_TABLE or s_lo > s_hi:  # too large anyway, or empty
+        return working, work
+    small = np.arange(s_lo, s_hi + 1)[:, None]
+    large = np.arange(l_lo, l_hi + 1)[None, :]
+    product = small * large
+    entries = np.where(small <= large, product - product // 2 + 1, 0).sum()
+    return max(int(entries), working), work
+
+
+@functools.lru_cache(maxsize=16)
+def _tail_table(s_lo, s_hi, l_lo, l_hi):
+    """Upper tails of the exact null distribution of the rank-sum statistic.
+
+    For groups of ``s <= l`` values without ties (``s_lo <= s <= s_hi``,
+    ``l_lo <= l <= l_hi``), ``U`` counts the pairs in which the value of the
+    group of ``s`` is the larger. Returns ``(tails, offsets)``, NumPy float64
+    and int32, with
+
+        P(U >= u) = tails[offsets[s - s_lo, l - l_lo] + u - s l // 2]
+
+    for ``s l // 2 <= u <= s l`` (the upper half; the distribution is
+    symmetric about ``s l / 2``). Pairs with ``s > l`` are not stored (their
+    offset is 0).
+
+    ``f(i, j)``, the distribution for ``i`` and ``j`` values, follows from the
+    largest of the ``i + j`` values, which is in the first group with
+    probability ``i / (i + j)`` (and beats all ``j`` others):
+
+        f(i, j)[u] = i / (i + j) f(i - 1, j)[u - j] + j / (i + j) f(i, j - 1)[u],
+
+    ``f(i, 0) = f(0, j) = [1]`` (Mann and Whitney 1947, in probabilities:
+    every term is positive, so no precision is lost to cancellation, and the
+    tails are summed from the top).
+    """
+    f = np.zeros((s_hi + 1, s_hi * l_hi + 1))
+    f[:, 0] = 1.0
+    offsets = np.zeros((s_hi - s_lo + 1, l_hi - l_lo + 1), np.int32)
+    tails, size = [], 0
+
+    def store(j):
+        nonlocal size
+        for i in range(s_lo, min(s_hi, j) + 1):
+            m = i * j
+            tail = np.cumsum(f[i, m::-1])[::-1][m // 2 :]
+            offsets[i - s_lo, j - l_lo] = size
+            tails.append(tail)
+            size += tail.size
+
+    if l_lo == 0:
+        store(0)
+    for j in range(1, l_hi + 1):
+        for i in range(1, s_hi + 1):
+            m = i * j
+            new = j / (i + j) * f[i, : m + 1]
+            new[j:] += i / (i + j) * f[i - 1, : m + 1 - j]
+            f[i, : m + 1] = new
+        if j >= l_lo:
+            store(j)
+    return np.concatenate(tails), offsets
+
+
+def _exact_p(u, n_x, n_y, s_lo, s_hi, l_lo, l_hi, dtype):
+    """Two-sided exact p of ``U`` for groups of ``n_x`` and ``n_y`` in the
+    table's ranges (``min(n_x, n_y) > s_hi`` gives an unused value)."""
+    tails, offsets = _tail_table(s_lo, s_hi, l_lo, l_hi)
+    small = jnp.minimum(n_x, n_y).astype(jnp.int32)
+    large = jnp.maximum(n_x, n_y).astype(jnp.int32)
+    product = small * large
+    # SciPy's exact method: U = max(U_x, U_y) (>= s l / 2), rounded down when
+    # ties make it a half-integer.
+    upper = jnp.floor(jnp.maximum(u, n_x * n_y - u)).astype(jnp.int32)
+    start = jnp.asarray(offsets)[
+        jnp.clip(small, s_lo, s_hi) - s_lo, jnp.clip(large, l_lo, l_hi) - l_lo
+    ]
+    index = start + jnp.clip(upper - product // 2, 0, product - product // 2)
+    tail = jnp.asarray(tails, dtype)[index]
+    return jnp.minimum(2 * tail, 1.0)
+
+
+def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
+    """Two-sided Wilcoxon rank-sum (Mann-Whitney) test.
 
     Parameters
     ----------
@@ -114,17 +228,34 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True):
     x_mask, y_mask : array of bool, optional
         Valid entries (default: all).
     continuity : bool, optional
-        Continuity correction of 1/2 (default, as MATLAB's ``ranksum`` and
-        SciPy's ``mannwhitneyu``).
+        Continuity correction of 1/2 in the normal approximation (default,
+        as MATLAB's ``ranksum`` and SciPy's ``mannwhitneyu``).
+    method : {"auto", "exact", "asymptotic"}, optional
+        Where ``p`` comes from, as in ``scipy.stats.mannwhitneyu``:
+        ``"exact"``, the exact null distribution of ``U``; ``"asymptotic"``,
+        the normal approximation; ``"auto"`` (default), SciPy's rule, for
+        each batch element on its valid entries: exact when the smaller group
+        has at most :data:`AUTO_EXACT_MAX` (8) values and no two valid values
+        are tied, else asymptotic (so two groups of 11, the paper's, get the
+        normal approximation: ask for ``"exact"`` to get its p = 2.84e-6).
 
     Returns
     -------
     RankSum
+        ``exact`` says, per batch element, which method gave ``p``.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``method``, or ``method="exact"`` for groups too large for
+        a table of the exact distribution (see Notes).
 
     Notes
     -----
-    Ranks are mid-ranks in the pooled valid sample, ``U = W - n(n+1)/2`` with
-    ``n = n_x``, and
+    Ranks are mid-ranks in the pooled valid sample, ``W`` the sum of those of
+    ``x``, ``U = W - n_x (n_x + 1) / 2``.
+
+    Asymptotic:
 
         z = sign(d) max(|d| - c/2, 0) / sqrt(n_x n_y / 12 (N + 1 - T / (N (N - 1)))),
         d = U - n_x n_y / 2,   T = sum over tie groups of (t^3 - t),
@@ -133,23 +264,48 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True):
     ``p = 2 Phi(-|z|)``. This is ``scipy.stats.mannwhitneyu(x, y,
     method="asymptotic")`` (with ``use_continuity=continuity``) and MATLAB's
     ``ranksum(x, y, 'method', 'approximate')``; without ties and without the
-    correction it is ``scipy.stats.ranksums``.
+    correction it is ``scipy.stats.ranksums``. ``z`` is this statistic
+    whichever method gives ``p``.
 
-    Small samples: the normal approximation is always used. MATLAB's
-    ``ranksum`` switches to its exact test when ``min(n_x, n_y) < 10`` and
-    ``n_x + n_y < 20``; for such sizes compute the exact p-value with SciPy
-    (``method="exact"``) for a report, while this function keeps one smooth,
-    vectorised rule for simulated experiments. The paper's groups (11
-    participants each) are in the approximate regime of both. When there is
-    no variation (every valid value tied) or a group is empty, ``z = 0`` and
-    ``p = 1``.
+    Exact: ``p = min(1, 2 P(U' >= max(U, n_x n_y - U)))`` with ``U'`` the
+    statistic of two groups of these sizes under the null hypothesis, all
+    ``C(N, n_x)`` arrangements of the ranks equally likely; this is
+    ``scipy.stats.mannwhitneyu(x, y, method="exact")`` and MATLAB's
+    ``ranksum(x, y, 'method', 'exact')`` without ties. Like SciPy's, it
+    makes no correction for ties (``U`` is rounded down when they make it a
+    half-integer); ``"auto"`` sends tied data to the approximation.
+
+    The exact distribution comes from a table of tail probabilities,
+    computed in NumPy once per range of group sizes (and cached), then
+    gathered from as a constant: cheap under ``jit`` and ``vmap`` over
+    thousands of experiments. The range follows the array shapes: without
+    masks the sizes are the static ``n`` and ``m`` and one distribution is
+    stored (about ``n m / 2`` entries); with a mask every size up to the
+    padded one is. A table is not built beyond 2**22 entries or 2**29
+    operations: two unmasked groups of more than about 160 values each, or
+    masked ones padded to more than about 90; for ``"auto"``, where only a
+    smaller group of at most 8 needs it, masked groups padded to more than
+    about 680 or an unmasked larger group of more than about 5,400. There
+    ``"exact"`` raises, and ``"auto"`` uses the normal approximation for
+    every element, as ``exact`` reports.
+
+    When there is no variation (every valid value tied) or a group is empty,
+    ``z = 0`` and ``p = 1``.
 
     Examples
     --------
-    >>> r = ranksum(jnp.array([0.10, 0.21, 0.15, 0.30]), jnp.array([0.0, -0.05, 0.02, 0.12]))
-    >>> float(r.statistic), float(r.u), round(float(r.p), 4)
-    (25.0, 15.0, 0.0606)
+    Four against four, all of ``x`` above all of ``y`` but one: exact (SciPy's
+    automatic choice), ``p = 2 P(U >= 15) = 2 (2 / 70)``.
+
+    >>> x, y = jnp.array([0.10, 0.21, 0.15, 0.30]), jnp.array([0.0, -0.05, 0.02, 0.12])
+    >>> r = ranksum(x, y)
+    >>> float(r.statistic), float(r.u), round(float(r.p), 4), bool(r.exact)
+    (25.0, 15.0, 0.0571, True)
+    >>> round(float(ranksum(x, y, method="asymptotic").p), 4)
+    0.0606
     """
+    if method not in ("auto", "exact", "asymptotic"):
+        raise ValueError(f"method: expected 'auto', 'exact' or 'asymptotic', got {method!r}")
     dtype = jnp.result_type(x, y, float)
     x, y = jnp.asarray(x, dtype), jnp.asarray(y, dtype)
     x_valid, y_valid = _mask(x, x_mask), _mask(y, y_mask)
@@ -169,7 +325,33 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True):
     informative = var > 0
     z = jnp.sign(d) * jnp.maximum(jnp.abs(d) - 0.5 * continuity, 0.0)
     z = jnp.where(informative, z / jnp.sqrt(jnp.where(informative, var, 1.0)), 0.0)
-    return RankSum(W, U, z, 2 * ndtr(-jnp.abs(z)), n_x, n_y)
+    p = 2 * ndtr(-jnp.abs(z))
+    exact = jnp.zeros(batch, bool)
+    if method != "asymptotic":
+        # Static bounds of the group sizes: fixed without a mask.
+        n, m = x.shape[-1], y.shape[-1]
+        low_x, low_y = (0 if mask is not None else k for mask, k in ((x_mask, n), (y_mask, m)))
+        s_lo, s_hi = min(low_x, low_y), min(n, m)
+        l_lo, l_hi = max(low_x, low_y), max(n, m)
+        if method == "auto":
+            s_hi = min(s_hi, AUTO_EXACT_MAX)
+        entries, work = _table_cost(s_lo, s_hi, l_lo, l_hi)
+        fits = s_lo <= s_hi and entries <= _MAX_TABLE and work <= _MAX_WORK
+        if method == "exact" and not fits:
+            raise ValueError(
+                f"method='exact': groups of up to {n} and {m} values "
+                f"({'with' if (x_mask, y_mask) != (None, None) else 'without'} masks) need "
+                f"a table of {entries} exact tail probabilities and {work} operations to "
+                f"build it, more than {_MAX_TABLE} and {_MAX_WORK}; use method='asymptotic' "
+                "(at these sizes the normal approximation is close)"
+            )
+        if fits:
+            exact = jnp.minimum(n_x, n_y) <= s_hi
+            if method == "auto":
+                exact &= ~jnp.any(valid & (tied > 1), axis=-1)
+            p_exact = _exact_p(U, n_x, n_y, s_lo, s_hi, l_lo, l_hi, dtype)
+            p = jnp.where(exact, p_exact, p)
+    return RankSum(W, U, z, p, n_x, n_y, exact)
 
 
 def hodges_lehmann(x, y, *, x_mask=None, y_mask=None):
@@ -191,12 +373,12 @@ def hodges_lehmann(x, y, *, x_mask=None, y_mask=None):
     return median(diff.reshape(flat), valid.reshape(flat))
 
 
-def compare(x, y, *, x_mask=None, y_mask=None, continuity=True):
+def compare(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     """Medians, the rank-sum test and effect sizes of ``x`` against ``y``.
 
     Parameters
     ----------
-    x, y, x_mask, y_mask, continuity
+    x, y, x_mask, y_mask, continuity, method
         As for :func:`ranksum`; e.g. ``x`` the manipulated and ``y`` the
         control PSEs of every participant.
 
@@ -214,7 +396,7 @@ def compare(x, y, *, x_mask=None, y_mask=None, continuity=True):
     >>> round(float(c.shift), 3), float(c.rank_biserial), round(float(c.median_x), 2)
     (0.165, 0.875, 0.18)
     """
-    test = ranksum(x, y, x_mask=x_mask, y_mask=y_mask, continuity=continuity)
+    test = ranksum(x, y, x_mask=x_mask, y_mask=y_mask, continuity=continuity, method=method)
     pairs = test.n_x * test.n_y
     r = jnp.where(pairs > 0, 2 * test.u / jnp.maximum(pairs, 1.0) - 1, 0.0)
     return Comparison(
