@@ -55,7 +55,8 @@ from scipy.optimize import least_squares  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
 from jaxadapt.operators import pattanaik2000 as op  # noqa: E402
-from jaxadapt.physiology.response import naka_rushton, power, sigma_cone, sigma_rod  # noqa: E402
+from jaxadapt.physiology.response import sigma_cone, sigma_rod  # noqa: E402
+from jaxadapt.physiology.threshold import increment_sensitivity  # noqa: E402
 
 NAMES = ("t0_rod", "t0_cone", "tau_rod", "tau_cone")
 #: (luminance cd/m2, duration s, thresholds) of each step, after 1e6 cd/m2.
@@ -72,20 +73,14 @@ def protocol():
     return jnp.asarray(np.concatenate(L)), jnp.asarray(np.concatenate(dt)), jnp.asarray(PRE)
 
 
-def sensitivity(L_b, sigma, B, n):
-    """``1 / dL`` of the response-to-threshold relation (as in the experiment)."""
-    R = naka_rushton(L_b, sigma, B, n) + DELTA
-    return n * power(B - R, (n + 1.0) / n) / (DELTA * sigma * B * power(R, (1.0 - n) / n))
-
-
 def log_threshold(params, args):
     """log10 threshold (cd/m2) at each frame, rods and cones pooled (as in the experiment)."""
     L, dt, pre = args
     frames = jnp.broadcast_to(L[:, None, None, None], (L.shape[0], 1, 1, 3))
     _, diag = op.run(params, frames, dt, state=op.static_state(params, pre, pre))
     s = diag.state
-    rod = sensitivity(L, sigma_rod(s.A_rod, params.n), s.B_rod, params.n)
-    cone = sensitivity(L, sigma_cone(s.A_cone, params.n), s.B_cone, params.n)
+    rod = increment_sensitivity(L, sigma_rod(s.A_rod, params.n), DELTA, s.B_rod, params.n)
+    cone = increment_sensitivity(L, sigma_cone(s.A_cone, params.n), DELTA, s.B_cone, params.n)
     return -0.25 * jnp.log10(jnp.maximum(rod**4 + cone**4, 1e-32))
 
 

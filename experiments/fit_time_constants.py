@@ -54,7 +54,8 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
 from jaxadapt.operators import pattanaik2000 as op  # noqa: E402
-from jaxadapt.physiology.response import naka_rushton, power, sigma_cone, sigma_rod  # noqa: E402
+from jaxadapt.physiology.response import sigma_cone, sigma_rod  # noqa: E402
+from jaxadapt.physiology.threshold import increment_sensitivity  # noqa: E402
 
 #: Criterion response of the response-to-threshold relation (of R_max = 1).
 DELTA = 0.01
@@ -89,20 +90,6 @@ def protocol(steps):
     return tuple(np.concatenate(a) for a in (L, dt, since, segment))
 
 
-def sensitivity(L_b, sigma, B, n, delta=DELTA):
-    """``1 / dL`` of the chapter's response-to-threshold relation (§6.2.4), 1/(cd/m2).
-
-    ``dL = delta sigma B R^((1-n)/n) / (n (B - R)^((n+1)/n))``,
-    ``R = R_b + delta`` (:func:`jaxadapt.physiology.threshold.increment_threshold`
-    with ``R_max = B``), written as its reciprocal so that a saturated
-    receptor (``R_b + delta >= B``: no increment can raise the response by
-    delta) has sensitivity 0 with a finite gradient instead of an infinite
-    threshold.
-    """
-    R = naka_rushton(L_b, sigma, B, n) + delta
-    return n * power(B - R, (n + 1.0) / n) / (delta * sigma * B * power(R, (1.0 - n) / n))
-
-
 def components(params, args):
     """log10 rod and cone sensitivities (1/(cd/m2)) at each frame."""
     L, dt, pre = args
@@ -110,8 +97,8 @@ def components(params, args):
     state = op.static_state(params, pre, pre)
     _, diag = op.run(params, frames, dt, state=state)
     s = diag.state
-    rod = sensitivity(L, sigma_rod(s.A_rod, params.n), s.B_rod, params.n)
-    cone = sensitivity(L, sigma_cone(s.A_cone, params.n), s.B_cone, params.n)
+    rod = increment_sensitivity(L, sigma_rod(s.A_rod, params.n), DELTA, s.B_rod, params.n)
+    cone = increment_sensitivity(L, sigma_cone(s.A_cone, params.n), DELTA, s.B_cone, params.n)
     return rod, cone
 
 

@@ -23,8 +23,8 @@ from scipy.stats import norm
 from jaxadapt import fitting
 from jaxadapt.operators import pattanaik2000 as op
 from jaxadapt.physiology import kinetics
-from jaxadapt.physiology.response import naka_rushton, power, sigma_cone, sigma_rod
-from jaxadapt.physiology.threshold import increment_threshold
+from jaxadapt.physiology.response import sigma_cone, sigma_rod
+from jaxadapt.physiology.threshold import increment_sensitivity, increment_threshold
 
 NAMES = ("t0_rod", "t0_cone", "tau_rod", "tau_cone")
 DELTA = 0.01
@@ -52,12 +52,6 @@ ARGS = (L_STEPS, DT_STEPS, jnp.asarray(1e6))
 FLAT_ARGS = (jnp.full_like(L_STEPS, 1e3), DT_STEPS, jnp.asarray(1e3))
 
 
-def _sensitivity(L_b, sigma, B, n):
-    """``1 / dL`` of the chapter's response-to-threshold relation, 0 when saturated."""
-    R = naka_rushton(L_b, sigma, B, n) + DELTA
-    return n * power(B - R, (n + 1) / n) / (DELTA * sigma * B * power(R, (1 - n) / n))
-
-
 def states(params, G_rod, G_cone, dt, pre):
     """The 2000 operator's state over frames with goals ``G_rod, G_cone``
     (cd/m2) held for ``dt`` (s), from full adaptation to ``pre``: its exact
@@ -76,8 +70,8 @@ def log_threshold(params, args):
     (Minkowski exponent 4, as in the experiment)."""
     L, dt, pre = args
     s, n = states(params, L, L, dt, pre), params.n
-    rod = _sensitivity(L, sigma_rod(s.A_rod, n), s.B_rod, n)
-    cone = _sensitivity(L, sigma_cone(s.A_cone, n), s.B_cone, n)
+    rod = increment_sensitivity(L, sigma_rod(s.A_rod, n), DELTA, s.B_rod, n)
+    cone = increment_sensitivity(L, sigma_cone(s.A_cone, n), DELTA, s.B_cone, n)
     return -0.25 * jnp.log10(jnp.maximum(rod**4 + cone**4, 1e-32))
 
 
@@ -121,13 +115,13 @@ def test_sensitivity_is_the_reciprocal_of_the_chapters_threshold():
     L = jnp.array([0.0, 1e-3, 1.0, 100.0])
     sigma, B = jnp.array([1e-3, 2.0, 50.0, 300.0]), jnp.array([0.05, 0.5, 1.0, 0.9])
     np.testing.assert_allclose(
-        1 / _sensitivity(L, sigma, B, 0.73),
+        1 / increment_sensitivity(L, sigma, DELTA, B, 0.73),
         increment_threshold(L, sigma, DELTA, B, 0.73),
         rtol=1e-12,
     )
-    saturated = _sensitivity(jnp.asarray(1e4), 1.0, 0.9, 0.73)
+    saturated = increment_sensitivity(jnp.asarray(1e4), 1.0, DELTA, 0.9, 0.73)
     assert float(saturated) == 0.0
-    assert float(jax.grad(lambda s: _sensitivity(1e4, s, 0.9, 0.73))(1.0)) == 0.0
+    assert float(jax.grad(lambda s: increment_sensitivity(1e4, s, DELTA, 0.9, 0.73))(1.0)) == 0.0
 
 
 def test_gradient_through_run_matches_finite_differences():
@@ -142,8 +136,8 @@ def test_gradient_through_run_matches_finite_differences():
         pre = jnp.asarray(1e6)
         _, diag = op.run(params, frames, DT_STEPS, state=op.static_state(params, pre, pre))
         s, n = diag.state, params.n
-        rod = _sensitivity(diag.G_rod, sigma_rod(s.A_rod, n), s.B_rod, n)
-        cone = _sensitivity(diag.G_cone, sigma_cone(s.A_cone, n), s.B_cone, n)
+        rod = increment_sensitivity(diag.G_rod, sigma_rod(s.A_rod, n), DELTA, s.B_rod, n)
+        cone = increment_sensitivity(diag.G_cone, sigma_cone(s.A_cone, n), DELTA, s.B_cone, n)
         return jnp.dot(weights, jnp.log10(rod**4 + cone**4)), diag.state
 
     v = _log_params(op.Params(t0_rod=0.17, t0_cone=0.07, tau_rod=380.0, tau_cone=120.0))

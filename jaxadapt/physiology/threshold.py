@@ -215,6 +215,18 @@ def increment_threshold(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     return delta * sigma_b / n * R_max * power(R, (1.0 - n) / n) / power(R_max - R, (n + 1.0) / n)
 
 
+def increment_sensitivity(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
+    """``1 / dI`` of :func:`increment_threshold`, in 1/(unit of ``I_b``).
+
+    Written as the reciprocal so that a saturated receptor (``R_b + delta
+    >= R_max``: no increment raises the response by ``delta``) has
+    sensitivity 0 with a finite gradient instead of an infinite threshold,
+    which is what a fit through saturation needs.
+    """
+    R = naka_rushton(I_b, sigma_b, R_max, n) + delta
+    return n * power(R_max - R, (n + 1.0) / n) / (delta * sigma_b * R_max * power(R, (1.0 - n) / n))
+
+
 def relative_threshold(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n=N_HUNT):
     """Threshold relative to the dark-adapted one, ``dI / dI_dark`` (§6.2.4, first line).
 
