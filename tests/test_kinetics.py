@@ -95,3 +95,25 @@ def test_exact_steps_converge_to_the_continuous_solution():
         errors.append(abs(float(B) - reference))
     assert errors[0] > errors[1] > errors[2]
     assert errors[2] < 1e-3 * reference
+
+
+@pytest.mark.parametrize("dtype, rtol", [(jnp.float64, 1e-12), (jnp.float32, 1e-5)])
+def test_relaxation_sequence_equals_a_loop_of_steps(dtype, rtol):
+    """The associative scan gives the states of T dependent exact steps,
+    for goals over 12 decades (bright steps included) and per-pixel maps:
+    to rounding in float64, and in float32 to the float64 loop."""
+    rng = np.random.default_rng(3)
+    G = jnp.asarray(10.0 ** rng.uniform(-4, 8, (37, 2, 3)), dtype)
+    dt = jnp.asarray(rng.uniform(0.001, 5.0, 37), dtype)
+    B0 = jnp.asarray(0.7, dtype)
+    law = k.bleaching(G, *(jnp.asarray(v, dtype) for v in ROD))
+    states = k.relaxation_sequence(B0, law, dt)
+    law64 = jax.tree.map(lambda x: x.astype(jnp.float64), law)
+    B, loop = jnp.broadcast_to(B0, G.shape[1:]).astype(jnp.float64), [B0]
+    for i in range(G.shape[0]):
+        B = k.relaxation_step(B, k.Relaxation(law64.rate[i], law64.target[i]), float(dt[i]))
+        loop.append(B)
+    loop = jnp.stack([jnp.broadcast_to(b, G.shape[1:]) for b in loop])
+    assert states.shape == (38, 2, 3) and states.dtype == dtype
+    np.testing.assert_allclose(states, loop, rtol=rtol, atol=10 * float(jnp.finfo(dtype).tiny))
+    assert bool(jnp.all((states >= 0) & (states <= 1)))

@@ -83,7 +83,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC
+from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
 from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, foveal_log_average
@@ -342,7 +342,7 @@ def semi_saturation(params, A):
 def adaptation_target(params, frame, gaze):
     """Target ``A_T`` of Eq 3: log10 of the foveal log-average photopic
     luminance around ``gaze``, floored at ``adaptation_floor`` (§2.4)."""
-    L = frame @ params.w_P
+    L = transform(frame, params.w_P)
     mean = foveal_log_average(L, gaze, params.pixels_per_degree)
     return jnp.log10(jnp.maximum(mean, params.adaptation_floor))
 
@@ -363,7 +363,7 @@ def normalised_log_luminance(params, L):
 def local_rho(params, frame):
     """rho (Eq 13) of the local photopic luminance: the frame's luminance
     blurred at the coarsest acuity scale. ``frame (H, W, 3)`` -> ``(H, W)``."""
-    L = gaussian_blur(frame @ params.w_P, acuity_sigmas(params)[-1])
+    L = gaussian_blur(transform(frame, params.w_P), acuity_sigmas(params)[-1])
     return normalised_log_luminance(params, L)
 
 
@@ -474,8 +474,8 @@ def tone_map(params, scene, rho, sigma):
         Linear response ``ratio R(L)``: display-relative, 1 = white.
     """
     rho = jnp.clip(rho, 0.0, 1.0)
-    L_P = scene @ params.w_P
-    L = rho * L_P + (1.0 - rho) * (scene @ params.w_S) if params.purkinje else L_P
+    L_P = transform(scene, params.w_P)
+    L = rho * L_P + (1.0 - rho) * transform(scene, params.w_S) if params.purkinje else L_P
     R = naka_rushton(L, sigma, 1.0, params.n)
     positive = (L_P > 0)[..., None]
     ratio = jnp.where(positive, scene / jnp.where(positive, L_P[..., None], 1.0), 1.0)
@@ -499,7 +499,7 @@ class Receptors(NamedTuple):
 def receptors(params, frame, sigma):
     """Cone excitations, equilibrium bleaching (Eq 6), responses (Eq 1) and
     equilibrium calcium (Eq 10) of a frame, for semi-saturation ``sigma``."""
-    lms = frame @ jnp.asarray(RGB_TO_LMS, dtype=frame.dtype).T
+    lms = transform(frame, RGB_TO_LMS)
     R = naka_rushton(lms, sigma, 1.0, params.n)
     return Receptors(
         lms,
@@ -556,14 +556,12 @@ def afterimages(params, response, state, rec, visibility):
     v = visibility[..., None]
     if params.local_adaptation:
         gain = local_gain(params, state.C, rec.C_inf) ** (params.j2 * v)
-        to_lms = jnp.asarray(RGB_TO_LMS, dtype=response.dtype)
-        to_rgb = jnp.asarray(LMS_TO_RGB, dtype=response.dtype)
-        response = ((response @ to_lms.T) * gain) @ to_rgb.T
+        response = transform(transform(response, RGB_TO_LMS) * gain, LMS_TO_RGB)
     if params.bleaching:
         excess = jnp.maximum(state.B - rec.B_inf, 0.0)
         if params.local_adaptation:
             excess = excess * state.C * (params.c2 / params.c1)
-        response = response + params.j1 * v * (excess @ params.H.T)
+        response = response + params.j1 * v * transform(excess, params.H)
     return response
 
 

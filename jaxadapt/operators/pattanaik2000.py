@@ -10,9 +10,10 @@ scene evokes in the scene viewer (Fig. 1 and Fig. 4 of the paper)::
     pixels: L_rod, L_cone -> R_lum, S_color -> display response -> display RGB
 
 The adaptation state is four scalars (``A_rod``, ``A_cone``, ``B_rod``,
-``B_cone``). :func:`run` therefore finds every frame's goals (reductions),
-scans the scalar state over time, and only then maps the pixels, each frame
-in one vectorised pass that no longer depends on the others; :func:`step`
+``B_cone``). :func:`run` therefore finds the goals of every frame at once
+(one batched reduction), advances the state through the whole sequence by
+the associative form of the exact kinetics (no loop over frames), and only
+then maps the pixels of every frame in one vectorised pass; :func:`step`
 does the same one frame at a time.
 
 Timing: frame ``k``, shown at ``t_k``, is seen with the state reached at
@@ -397,16 +398,19 @@ def frame_goals(params, frame, gaze):
     ``params.background`` is not ``"global"``. ``gaze`` ``(x, y)`` in
     pixels is used by the ``"foveal"`` goal.
     """
-    L = jnp.stack([scotopic_luminance(frame), photopic_luminance(frame)])
-    if params.background != "global":
-        G = goals.estimate_background(L, params.background, params.background_scale)
-    elif params.goal == "log_average":
-        G = goals.log_average(L)
-    elif params.goal == "white_fraction":
-        G = goals.white_fraction(L, params.goal_fraction, params.white_percentile)
-    else:
-        G = jax.vmap(goals.foveal_log_average, (0, None, None))(L, gaze, params.pixels_per_degree)
-    return G[0], G[1]
+
+    def goal(L):
+        if params.background != "global":
+            return goals.estimate_background(L, params.background, params.background_scale)
+        if params.goal == "log_average":
+            return goals.log_average(L)
+        if params.goal == "white_fraction":
+            return goals.white_fraction(L, params.goal_fraction, params.white_percentile)
+        return goals.foveal_log_average(L, gaze, params.pixels_per_degree)
+
+    # Two reductions of the frame's shape (not one of a stack): XLA fuses
+    # them, and the frames' value check, into one read of the frames.
+    return goal(scotopic_luminance(frame)), goal(photopic_luminance(frame))
 
 
 def static_state(params, G_rod, G_cone):
@@ -416,14 +420,44 @@ def static_state(params, G_rod, G_cone):
     return State(G_rod, G_cone, B_rod, B_cone)
 
 
+def relaxations(params, G_rod, G_cone):
+    """The kinetics of each state field under goals ``G_rod``, ``G_cone``
+    (cd/m2): a :class:`State` of :class:`~jaxadapt.physiology.kinetics.Relaxation`.
+
+    Neural filters with ``t0_rod``, ``t0_cone`` (§4.1.2) and pigment
+    bleaching with ``tau``, ``c`` (Eq 7).
+    """
+    return State(
+        kinetics.neural(G_rod, params.t0_rod),
+        kinetics.neural(G_cone, params.t0_cone),
+        kinetics.bleaching(G_rod, params.tau_rod, params.c_rod),
+        kinetics.bleaching(G_cone, params.tau_cone, params.c_cone),
+    )
+
+
 def advance(params, state, G_rod, G_cone, dt):
     """State after goals held for ``dt`` s: the exact steps of the kinetics."""
-    return State(
-        kinetics.neural_step(state.A_rod, G_rod, params.t0_rod, dt),
-        kinetics.neural_step(state.A_cone, G_cone, params.t0_cone, dt),
-        kinetics.bleaching_step(state.B_rod, G_rod, params.tau_rod, params.c_rod, dt),
-        kinetics.bleaching_step(state.B_cone, G_cone, params.tau_cone, params.c_cone, dt),
-    )
+    steps = zip(state, relaxations(params, G_rod, G_cone), strict=True)
+    return State(*(kinetics.relaxation_step(y, law, dt) for y, law in steps))
+
+
+def advance_sequence(params, state, G_rod, G_cone, dt):
+    """States a sequence of frames is seen with, and the state after it.
+
+    Frame ``k``'s goals ``G_rod[k]``, ``G_cone[k]`` (cd/m2) are held for
+    ``dt[k]`` s. All frames at once, by the associative form of the exact
+    steps (:func:`~jaxadapt.physiology.kinetics.relaxation_sequence`): equal
+    to a loop of :func:`advance` up to rounding.
+
+    Returns
+    -------
+    (State, State)
+        Fields of shape ``(T, ...)``: the state at each frame's start; and
+        the state after the last frame's ``dt``.
+    """
+    laws = relaxations(params, G_rod, G_cone)
+    ys = [kinetics.relaxation_sequence(y, law, dt) for y, law in zip(state, laws, strict=True)]
+    return State(*(y[:-1] for y in ys)), State(*(y[-1] for y in ys))
 
 
 # -- the contract -------------------------------------------------------------
@@ -477,19 +511,15 @@ def _probe(x, gaze):
     return x[row, col]
 
 
-def _show(params, state, frame, dt, gaze):
-    """Show one frame, then advance the state over its duration.
+def _display(params, G_rod, G_cone, state, frame, gaze):
+    """Show a frame with its goals to a viewer in ``state``.
 
-    The body of :func:`step` and of :func:`run`'s scan. Returns the new
-    state, the display frame and the frame's record at the gaze point
+    Returns the display frame and the frame's record at the gaze point
     ``(G_rod, G_cone, state, observer, curve)``.
     """
-    G_rod, G_cone = frame_goals(params, frame, gaze)
     obs = observer(params, state)
-    out = tone_map(params, obs, frame)
     seen = jax.tree.map(lambda x: _probe(x, gaze), (G_rod, G_cone, state, obs))
-    record = (*seen, curve(params, seen[-1]))
-    return advance(params, state, G_rod, G_cone, dt), out, record
+    return tone_map(params, obs, frame), (*seen, curve(params, seen[-1]))
 
 
 def step(params, state, frame, dt, *, gaze=None, key=None):
@@ -526,8 +556,9 @@ def _step(params, state, frame, dt, gaze):
     state = jax.tree.map(lambda s: s + guard, state)
     dt = check_dt(dt, 1)[0]
     gaze = _centre(frame) if gaze is None else gaze
-    state, out, _ = _show(params, state, frame, dt, gaze)
-    return state, out
+    G_rod, G_cone = frame_goals(params, frame, gaze)
+    out, _ = _display(params, G_rod, G_cone, state, frame, gaze)
+    return advance(params, state, G_rod, G_cone, dt), out
 
 
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
@@ -554,10 +585,11 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     -------
     (array, Diagnostics)
         Display frames ``(T, H, W, 3)``, linear, in [0, 1], and the per-frame
-        record (at the gaze point, for a local background). ``run`` is a
-        ``lax.scan`` of the body of :func:`step`, so it gives the same frames
-        as a loop of it; each frame's pixels are mapped in one vectorised
-        pass, which keeps a frame's intermediates small.
+        record (at the gaze point, for a local background). ``run`` finds
+        every frame's goals at once, advances the state through the whole
+        sequence (:func:`advance_sequence`) and then maps the pixels of all
+        frames in one vectorised pass; it gives the frames of a loop of
+        :func:`step` up to rounding.
 
     Examples
     --------
@@ -580,16 +612,13 @@ def _run(params, frames, dt, gaze, state):
         gaze = jnp.broadcast_to(_centre(frames), (T, 2))
     elif gaze.shape != (T, 2):
         raise ValueError(f"gaze: expected shape ({T}, 2) in pixels, got shape {gaze.shape}")
-    G_rod, G_cone = frame_goals(params, frames[0], gaze[0])
+    G_rod, G_cone = jax.vmap(frame_goals, (None, 0, 0))(params, frames, gaze)
     if state is None:
-        state = static_state(params, G_rod, G_cone)
-    state = jax.tree.map(lambda s: jnp.broadcast_to(s + guard, G_cone.shape), state)
-
-    def scan_step(s, inputs):
-        s, out, record = _show(params, s, *inputs)
-        return s, (out, record)
-
-    final_state, (out, record) = jax.lax.scan(scan_step, state, (frames, dt, gaze))
+        state = static_state(params, G_rod[0], G_cone[0])
+    state = jax.tree.map(lambda s: jnp.broadcast_to(s + guard, G_cone.shape[1:]), state)
+    states, final_state = advance_sequence(params, state, G_rod, G_cone, dt)
+    display = jax.vmap(_display, (None, 0, 0, 0, 0, 0))
+    out, record = display(params, G_rod, G_cone, states, frames, gaze)
     G_rod, G_cone, states, obs, curves = record
     diagnostics = Diagnostics(
         t=jnp.cumsum(dt) - dt,

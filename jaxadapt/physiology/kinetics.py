@@ -20,7 +20,9 @@ Each law below is given three ways:
 * the right-hand side in diffrax's ``f(t, y, args)`` form, where the input
   ``G`` in ``args`` is either an array or a diffrax path (e.g.
   :func:`goal_path`, a linear interpolation through frame times), and
-* the exact step for an input held over ``dt``, which the operators use.
+* the exact step for an input held over ``dt``, which the operators use,
+  and :func:`relaxation_sequence`, the same steps over a whole sequence of
+  held inputs at once.
 
 :func:`integrate` solves any of the right-hand sides with diffrax; it is the
 reference the exact steps are tested against and the path for inputs that
@@ -30,6 +32,7 @@ vary continuously. Times in seconds, luminance in cd/m2.
 from typing import NamedTuple
 
 import diffrax
+import jax
 import jax.numpy as jnp
 
 
@@ -53,9 +56,58 @@ def relaxation_rhs(y, relaxation):
     return relaxation.rate * (relaxation.target - y)
 
 
+def affine_step(relaxation, dt):
+    """The exact step as the affine map ``y -> a y + b``: ``(a, b)``.
+
+    ``a = exp(-k dt)`` and ``b = (1 - a) y_inf``, with ``1 - a`` as
+    ``-expm1(-k dt)`` so that slow relaxations (``k dt`` near float
+    epsilon) keep their digits in float32.
+    """
+    x = relaxation.rate * dt
+    return jnp.exp(-x), -jnp.expm1(-x) * relaxation.target
+
+
 def relaxation_step(y, relaxation, dt):
-    """Exact solution after ``dt`` seconds: ``y_inf + (y - y_inf) exp(-k dt)``."""
-    return relaxation.target + (y - relaxation.target) * jnp.exp(-relaxation.rate * dt)
+    """Exact solution after ``dt`` seconds: ``y_inf + (y - y_inf) exp(-k dt)``,
+    evaluated as ``a y + b`` (:func:`affine_step`)."""
+    a, b = affine_step(relaxation, dt)
+    return a * y + b
+
+
+def relaxation_sequence(y0, relaxation, dt):
+    """The exact steps over a sequence of inputs, each held for its ``dt``.
+
+    Step ``k`` is the affine map ``y -> a_k y + b_k`` of
+    :func:`affine_step`.
+    Affine maps compose associatively, ``(a2, b2) o (a1, b1) = (a2 a1, a2 b1
+    + b2)``, so every prefix of the sequence is found by
+    ``jax.lax.associative_scan`` in ``log2 T`` vectorised rounds instead of
+    a loop of ``T`` dependent steps; the states are then ``A_k y0 + B_k``.
+    Equal to a loop of :func:`relaxation_step` up to rounding.
+
+    Parameters
+    ----------
+    y0 : array
+        State before the first step; broadcasts against one step's fields.
+    relaxation : Relaxation
+        Rate (1/s) and target of each step, leading axis ``T``.
+    dt : array, shape (T,)
+        Duration of each step, s.
+
+    Returns
+    -------
+    array, shape (T + 1, ...)
+        The state before each step, then the state after the last.
+    """
+    dt = jnp.reshape(dt, dt.shape + (1,) * (jnp.ndim(relaxation.rate) - jnp.ndim(dt)))
+    a, b = affine_step(relaxation, dt)
+
+    def compose(first, then):
+        return then[0] * first[0], then[0] * first[1] + then[1]
+
+    A, B = jax.lax.associative_scan(compose, (a, b))
+    y0 = jnp.broadcast_to(y0, A.shape[1:])
+    return jnp.concatenate([y0[None], A * y0 + B])
 
 
 def _at(G, t):

@@ -80,7 +80,7 @@ import numpy as np
 from jax.scipy.special import ndtr
 
 from jaxadapt import scenes
-from jaxadapt.color import W_PHOTOPIC
+from jaxadapt.color import W_PHOTOPIC, photopic_luminance
 from jaxadapt.io import atomic_path
 from jaxadapt.operators import jacobs2015
 from jaxadapt.operators.goal import LUMINANCE_FLOOR
@@ -184,13 +184,9 @@ class Displays(NamedTuple):
     times: np.ndarray
 
 
-def _photopic(display):
-    return display @ jnp.asarray(W_PHOTOPIC, dtype=display.dtype)
-
-
 def _features_one(display, presented, blank, ambient):
     """Features of one displayed stimulus ``(T, H, W, 3)``."""
-    Y = _photopic(display)
+    Y = photopic_luminance(display)
     shown = presented.astype(Y.dtype)[:, None, None]
     n_shown = jnp.maximum(jnp.sum(presented), 1)
     mean_Y = jnp.sum(Y * shown) / (n_shown * Y[0].size)
@@ -374,7 +370,7 @@ def afterimage_displays(
 
     weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
     shown = jnp.asarray(presented)
-    flash = jnp.sum(_photopic(weak) * shown[:, None, None], axis=0) / np.sum(presented)
+    flash = jnp.sum(photopic_luminance(weak) * shown[:, None, None], axis=0) / np.sum(presented)
     k = protocol.standard / jnp.max(flash)  # cd/m2 per unit of linear display value
     levels = jnp.asarray(protocol.levels, jnp.float32)
     scale = jnp.where(shown, 10.0 ** levels[:, None], 1.0)[..., None, None, None]  # (L, T, 1, 1, 1)
@@ -446,7 +442,7 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
         def one(f):
             out, _ = jacobs2015.run(params, f, 1.0 / fps, gaze=gaze, key=key)
             lin = _linear(out, params)
-            return lin * jnp.mean(_photopic(f)) / jnp.mean(_photopic(lin))
+            return lin * jnp.mean(photopic_luminance(f)) / jnp.mean(photopic_luminance(lin))
 
         return jax.vmap(one)(batch)
 
