@@ -25,14 +25,7 @@ WHITES = (100.0, 0.1, 0.01)
 def main():
     args, out = setup("jacobs_fig10_purkinje", __doc__.splitlines()[0])
     width, height = (120, 80) if args.smoke else (360, 240)
-    bare = op.Params(
-        bleaching=False,
-        local_adaptation=False,
-        purkinje=False,
-        mesopic_colour=False,
-        acuity=False,
-        dithering=False,
-    )
+    bare = op.only()
     purkinje = dataclasses.replace(bare, purkinje=True)
     fig = Figure(figsize=(12, 2.9 * len(WHITES)))
     axes = fig.subplots(len(WHITES), 3, squeeze=False)

@@ -35,13 +35,7 @@ def main():
     luminance = 0.3
     chart = resolution_chart(size)[..., None] * np.ones(3) * luminance
     frames = jnp.broadcast_to(jnp.asarray(chart, jnp.float32), (count * step, size, size, 3))
-    base = op.Params(
-        bleaching=False,
-        local_adaptation=False,
-        purkinje=False,
-        mesopic_colour=False,
-        dithering=False,
-    )
+    base = op.only("acuity")
     display, _ = op.run(base, frames, 1 / 30, key=jax.random.key(0))
     sharp, _ = op.run(dataclasses.replace(base, acuity=False), frames[:1], 1 / 30)
     sharp = linear(sharp[0], base)

@@ -16,18 +16,10 @@ from jaxadapt.spatial import gaussian_blur
 
 KEY = jax.random.key(0)
 #: Everything off: the bare global tone curve of Eqs 1-2.
-BARE = op.Params(
-    global_adaptation=False,
-    bleaching=False,
-    local_adaptation=False,
-    purkinje=False,
-    mesopic_colour=False,
-    acuity=False,
-    dithering=False,
-)
+BARE = op.only(global_adaptation=False)
 #: The deterministic pipeline (no acuity noise, no dithering).
 SMOOTH = op.Params(acuity=False, dithering=False)
-EFFECTS = ("bleaching", "local_adaptation", "purkinje", "mesopic_colour", "acuity", "dithering")
+EFFECTS = op.EFFECTS
 
 
 def only(*effects):
@@ -534,3 +526,11 @@ def test_jacobs_scenes_are_registered_and_calibrated():
     white = scenes.colorchecker_rgb()[3, 0] @ np.array([0.2126, 0.7152, 0.0722])
     mesopic = scenes.mesopic(width=60, height=40)
     assert float(np.asarray(mesopic.render([0.0])).max()) <= 5.5e-2 * white * 1.01
+
+
+def test_only_switches_on_the_named_effects_and_names_unknown_ones():
+    p = op.only("purkinje", "acuity", n=0.8)
+    assert [getattr(p, e) for e in op.EFFECTS] == [e in ("purkinje", "acuity") for e in op.EFFECTS]
+    assert p.global_adaptation and float(p.n) == 0.8
+    with pytest.raises(ValueError, match="effects: expected names from"):
+        op.only("purkinje", "glare")

@@ -244,6 +244,29 @@ class Params(eqx.Module):
         return self.acuity or self.dithering
 
 
+#: The effects that :class:`Params` can switch off, in the pipeline's order.
+EFFECTS = ("bleaching", "local_adaptation", "purkinje", "mesopic_colour", "acuity", "dithering")
+
+
+def only(*effects, **fields):
+    """:class:`Params` with only ``effects`` (names from :data:`EFFECTS`)
+    switched on and the other ``fields`` as given.
+
+    Global adaptation is not one of the effects: it stays on unless
+    ``global_adaptation=False`` is given.
+
+    Examples
+    --------
+    >>> p = only("purkinje")
+    >>> p.purkinje, p.bleaching, p.global_adaptation
+    (True, False, True)
+    """
+    unknown = sorted(set(effects) - set(EFFECTS))
+    if unknown:
+        raise ValueError(f"effects: expected names from {EFFECTS}, got {unknown}")
+    return Params(**{name: name in effects for name in EFFECTS}, **fields)
+
+
 class State(NamedTuple):
     """State of the viewer.
 

@@ -427,16 +427,9 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
     times = charts[0].times
     frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
     gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
-    plain = jacobs2015.Params(
-        bleaching=False,
-        local_adaptation=False,
-        purkinje=False,
-        mesopic_colour=False,
-        acuity=False,
-        dithering=False,
-        pixels_per_degree=charts[0].pixels_per_degree,
-    )
-    effects = dataclasses.replace(plain, mesopic_colour=True, acuity=True)
+    ppd = charts[0].pixels_per_degree
+    plain = jacobs2015.only(pixels_per_degree=ppd)
+    effects = jacobs2015.only("mesopic_colour", "acuity", pixels_per_degree=ppd)
 
     def render(params, batch):
         def one(f):
