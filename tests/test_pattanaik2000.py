@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from jaxadapt import scenes
-from jaxadapt.color import photopic_luminance
+from jaxadapt.color import photopic_luminance, scotopic_luminance
 from jaxadapt.operators import pattanaik2000 as op
 from jaxadapt.physiology import kinetics
-from jaxadapt.physiology.response import bleach_cone, bleach_rod
+from jaxadapt.physiology.response import bleach_cone, bleach_rod, response_slope
 
 P = op.Params()
 
@@ -153,6 +153,31 @@ def test_black_darkness_and_1e8_are_finite(dtype):
     assert jnp.all(jnp.isfinite(out)) and jnp.all((out >= 0) & (out <= 1))
     for leaf in jax.tree.leaves(diag):
         assert jnp.all(jnp.isfinite(leaf))
+
+
+def test_tone_map_is_the_colour_ratio_power_and_differentiable_at_black():
+    # tone_map evaluates (rgb / L_cone)^e L_d / L_white as one exponential
+    # per channel; compare with the formula as written, on pixels that are
+    # black, miss a channel, lie below display black or saturate.
+    obs = op.observer(P, op.static_state(P, jnp.array(300.0), jnp.array(300.0)))
+    rgb = jnp.array(
+        [[0, 0, 0], [5, 0, 0], [0, 2, 7], [1e-3] * 3, [80, 60, 30], [300, 200, 900], [1e7] * 3],
+        dtype=float,
+    )
+    L_cone = photopic_luminance(rgb)
+    R = op.luminance_response(
+        P, scotopic_luminance(rgb), L_cone, obs.sigma_rod, obs.sigma_cone, obs.B_rod, obs.B_cone
+    )
+    L_d = op.display_luminance(P, obs.scale * R + obs.offset)
+    e = response_slope(L_cone, obs.sigma_cone, obs.B_cone, P.n) / op.display_slope(P)
+    ratio = np.where(L_cone[:, None] > 0, rgb / np.maximum(L_cone, 1e-300)[:, None], 1.0)
+    expected = np.clip(
+        ratio ** e[:, None] * (L_d / (P.white_factor * P.display_adaptation))[:, None], 0, 1
+    )
+    assert float(L_d[3]) == 0.0  # below display black
+    np.testing.assert_allclose(op.tone_map(P, obs, rgb), expected, rtol=1e-12, atol=1e-30)
+    grad = jax.grad(lambda x: jnp.sum(op.tone_map(P, obs, x)))(rgb)
+    assert jnp.all(jnp.isfinite(grad))
 
 
 def test_float32_matches_float64():

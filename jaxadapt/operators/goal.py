@@ -23,6 +23,7 @@ from jaxadapt.spatial import (
     foveal_weights,
     gaussian_blur,
     lowpass_stack,
+    plane_sum,
 )
 
 #: Floor applied before taking logarithms, cd/m2: the bottom of the range of
@@ -51,7 +52,8 @@ def log_average(L, floor=LUMINANCE_FLOOR):
     >>> float(log_average(jnp.array([[1.0, 100.0]])))  # doctest: +ELLIPSIS
     10.0...
     """
-    return jnp.exp(jnp.mean(jnp.log(jnp.maximum(L, floor)), axis=(-2, -1)))
+    H, W = L.shape[-2:]
+    return jnp.exp(plane_sum(jnp.log(jnp.maximum(L, floor))) / (H * W))
 
 
 def white_fraction(L, fraction=0.2, percentile=99.0, floor=LUMINANCE_FLOOR):
@@ -108,7 +110,7 @@ def foveal_log_average(L, gaze, pixels_per_degree, floor=LUMINANCE_FLOOR):
         Goal, cd/m2.
     """
     w = foveal_weights(L.shape[-2:], gaze, pixels_per_degree, dtype=L.dtype)
-    return jnp.exp(jnp.sum(w * jnp.log(jnp.maximum(L, floor)), axis=(-2, -1)))
+    return jnp.exp(plane_sum(w * jnp.log(jnp.maximum(L, floor))))
 
 
 #: Names accepted by the operators' ``goal`` option.

@@ -45,7 +45,6 @@ from jaxadapt.physiology.response import (
     forward_difference_slope,
     naka_rushton,
     naka_rushton_sum_inverse,
-    power,
     response_slope,
     sigma_cone,
     sigma_rod,
@@ -364,9 +363,17 @@ def tone_map(params, obs, rgb):
     ``R_lum = R_rod + R_cone`` (Eq 2); the display response
     ``scale * R_lum + offset`` (§4.3); its luminance ``L_d`` through the
     inverse display observer; and the colour ratios ``C = rgb / L_cone``
-    raised to ``S_color / S_d`` (Eq 3 per log10 unit, over the display's
-    ``S_d``): ``out = C^(S_color/S_d) L_d / L_white``, clipped to [0, 1].
-    Black pixels (``L_cone = 0``) have neutral colour ratios.
+    raised to ``e = S_color / S_d`` (Eq 3 per log10 unit, over the display's
+    ``S_d``): ``out = C^e L_d / L_white``, clipped to [0, 1]. Black pixels
+    (``L_cone = 0``) have neutral colour ratios.
+
+    Each channel costs one exponential: ``out = exp(e ln rgb + s)`` with the
+    pixel's ``s = ln(L_d / L_white) - e ln L_cone``; a display luminance of 0
+    enters as the smallest normal float (its output is below 1e-30). Black
+    pixels get their neutral ratio from adding 1 to ``rgb`` and ``L_cone``
+    there, not from a select on a per-pixel test broadcast over the
+    channels: XLA's CPU backend evaluates the exponentials after such a
+    select unvectorised, four times slower.
     """
     L_cone = photopic_luminance(rgb)
     L_rod = scotopic_luminance(rgb)
@@ -374,12 +381,15 @@ def tone_map(params, obs, rgb):
         params, L_rod, L_cone, obs.sigma_rod, obs.sigma_cone, obs.B_rod, obs.B_cone
     )
     L_d = display_luminance(params, obs.scale * R_lum + obs.offset)
-    S_color = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n)
-    positive = L_cone > 0
-    ratio = jnp.where(positive[..., None], rgb / jnp.where(positive, L_cone, 1.0)[..., None], 1.0)
-    colour = power(ratio, (S_color / display_slope(params))[..., None])
+    e = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n) / display_slope(params)
+    tiny = jnp.finfo(rgb.dtype).tiny
     white_d = params.white_factor * params.display_adaptation
-    return jnp.clip(colour * (L_d / white_d)[..., None], 0.0, 1.0)
+    black = (L_cone <= 0).astype(rgb.dtype)
+    s = jnp.log(jnp.maximum(L_d / white_d, tiny)) - e * jnp.log(L_cone + black)
+    rgb = rgb + black[..., None]
+    lit = rgb > 0
+    out = jnp.exp(e[..., None] * jnp.log(jnp.where(lit, rgb, 1.0)) + s[..., None])
+    return jnp.minimum(jnp.where(lit, out, 0.0), 1.0)
 
 
 def curve(params, obs):
