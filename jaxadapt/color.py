@@ -5,6 +5,7 @@ so that the photopic luminance ``Y`` of a pixel is in cd/m2.
 """
 
 import colour
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -74,17 +75,22 @@ def transform(x, M):
     it, whereas a dot contracting three channels over a batch of frames
     becomes a matrix multiply of its own on a GPU (an extra pass over the
     frames: 78 us per 1080p frame on an H100 for the two luminances of
-    :mod:`~jaxadapt.operators.pattanaik2000`).
+    :mod:`~jaxadapt.operators.pattanaik2000`). The exception is a matrix on
+    the CPU, which is a dot: fused there, the sums of its ``k`` outputs
+    make XLA evaluate whatever computes ``x`` ``k`` times (the 2015
+    operator's afterimage gain, an exponential per cone class, three times
+    per channel: the whole operator a quarter slower).
     """
     M = jnp.asarray(M, dtype=x.dtype)
-    channels = [x[..., j] for j in range(x.shape[-1])]
 
-    def row(m):
-        return sum(m[j] * c for j, c in enumerate(channels))
+    def sums(x):
+        channels = [x[..., j] for j in range(x.shape[-1])]
+        rows = [sum(m[j] * c for j, c in enumerate(channels)) for m in M.reshape(-1, 3)]
+        return rows[0] if M.ndim == 1 else jnp.stack(rows, axis=-1)
 
     if M.ndim == 1:
-        return row(M)
-    return jnp.stack([row(m) for m in M], axis=-1)
+        return sums(x)
+    return jax.lax.platform_dependent(x, cpu=lambda x: x @ M.T, default=sums)
 
 
 def photopic_luminance(rgb):

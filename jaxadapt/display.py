@@ -4,6 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt.physiology.response import power
+
 
 def encode_srgb(v):
     """IEC 61966-2-1 sRGB encoding of linear values in [0, 1].
@@ -11,13 +13,13 @@ def encode_srgb(v):
     ``12.92 v`` below 0.0031308, ``1.055 v^(1/2.4) - 0.055`` above.
     """
     v = jnp.clip(v, 0.0, 1.0)
-    high = 1.055 * jnp.maximum(v, 0.0031308) ** (1.0 / 2.4) - 0.055
+    high = 1.055 * power(jnp.maximum(v, 0.0031308), 1.0 / 2.4) - 0.055
     return jnp.where(v <= 0.0031308, 12.92 * v, high)
 
 
 def encode_gamma(v, gamma=2.2):
     """Pure power-law encoding ``v^(1/gamma)`` of linear values in [0, 1]."""
-    return jnp.clip(v, 0.0, 1.0) ** (1.0 / gamma)
+    return power(jnp.clip(v, 0.0, 1.0), 1.0 / gamma)
 
 
 ENCODINGS = {"srgb": encode_srgb, "gamma": encode_gamma, "linear": lambda v: jnp.clip(v, 0, 1)}

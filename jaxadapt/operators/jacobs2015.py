@@ -88,7 +88,7 @@ from jaxadapt.display import dither
 from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, foveal_log_average
 from jaxadapt.physiology import kinetics
-from jaxadapt.physiology.response import naka_rushton
+from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import check_value, gaussian_blur
 
 #: Appendix A: LMS bleaching deviations to RGB afterimage colour.
@@ -578,7 +578,7 @@ def afterimages(params, response, state, rec, visibility):
     """
     v = visibility[..., None]
     if params.local_adaptation:
-        gain = local_gain(params, state.C, rec.C_inf) ** (params.j2 * v)
+        gain = power(local_gain(params, state.C, rec.C_inf), params.j2 * v)
         response = transform(transform(response, RGB_TO_LMS) * gain, LMS_TO_RGB)
     if params.bleaching:
         excess = jnp.maximum(state.B - rec.B_inf, 0.0)
@@ -697,7 +697,7 @@ def _frame(params, state, frame, dt, sample):
         scene = acuity_loss(params, frame, rho, X)
     response = tone_map(params, scene, rho, sigma)
     response = afterimages(params, response, seen, rec, falloff(params, shape, gaze))
-    J = jnp.clip(response, 0.0, 1.0) ** params.gamma
+    J = power(jnp.clip(response, 0.0, 1.0), params.gamma)
     if params.dithering:
         J = dither(J, jax.random.fold_in(key_dither, seen.frame), params.levels)
 
