@@ -1,6 +1,7 @@
 """Adaptation goals, colour constants and display encodings."""
 
 import colour
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -70,7 +71,18 @@ def test_gaussian_blur_matches_scipy_and_keeps_constants():
     x = np.random.default_rng(0).uniform(size=(2, 20, 30))
     expected = np.stack([gaussian_filter(a, 2.0, mode="mirror", truncate=4.0) for a in x])
     np.testing.assert_allclose(spatial.gaussian_blur(jnp.asarray(x), 2.0), expected, atol=1e-12)
+    # Colour images blurred where the channels lie, (H, W, C) with axes (-3, -2).
+    channels_last = spatial.gaussian_blur(jnp.asarray(x.transpose(1, 2, 0)), 2.0, axes=(-3, -2))
+    np.testing.assert_allclose(channels_last, expected.transpose(1, 2, 0), atol=1e-12)
     wide = spatial.gaussian_blur(jnp.full((5, 7), 3.0), 10.0)  # kernel longer than the image
     np.testing.assert_allclose(wide, 3.0, rtol=1e-12)
     with pytest.raises(ValueError, match="sigma: expected a positive width"):
         spatial.gaussian_kernel(0.0)
+
+
+def test_plane_sum_is_the_sum_over_the_image_axes():
+    # On the CPU plane_sum is two products with vectors of ones (module notes).
+    x = np.random.default_rng(1).lognormal(size=(3, 2, 17, 23))
+    np.testing.assert_allclose(spatial.plane_sum(jnp.asarray(x)), x.sum(axis=(-2, -1)), rtol=1e-13)
+    grad = jax.grad(lambda a: spatial.plane_sum(a).sum())(jnp.asarray(x))
+    np.testing.assert_array_equal(grad, np.ones_like(x))
