@@ -606,7 +606,8 @@ def blur_maps(params, B, C):
     """Blur the bleaching and calcium maps between frames (§2.4), in one pass."""
     if params.afterimage_blur == 0:
         return B, C
-    both = gaussian_blur(jnp.concatenate([B, C], axis=-1), params.afterimage_blur, axes=(-3, -2))
+    both = jnp.moveaxis(jnp.concatenate([B, C], axis=-1), -1, 0)
+    both = jnp.moveaxis(gaussian_blur(both, params.afterimage_blur), 0, -1)
     return both[..., :3], both[..., 3:]
 
 
