@@ -309,23 +309,28 @@ def test_grouping_keeps_every_trial(rows):
 
 
 def test_fit_groups_writes_fits_csv(tmp_path):
-    # Simulated responses of two participants in the afterimage protocol.
+    # Simulated responses of 32 participants in the afterimage protocol: 64
+    # groups, bootstrapped 200 times, the batch that test_psychophysics_fit.py
+    # fits and bootstraps (so that the test suite compiles both only once).
+    n_participants = 32
     t = design.trial_list(A, jax.random.key(7))
     p = F.psychometric(t.level, jnp.where(t.condition == 1, 0.05, 0.0), 0.1)
-    responses = jax.random.bernoulli(jax.random.key(8), p, (2, p.shape[0])).astype(int)
+    responses = jax.random.bernoulli(jax.random.key(8), p, (n_participants, p.shape[0]))
+    responses = np.asarray(responses).astype(int)
+    condition, level = np.asarray(t.condition), np.asarray(t.level)
     rows = [HEADER]
-    for i in range(2):
+    for i in range(n_participants):
         for trial in range(20, p.shape[0]):  # the analysed trials
             rows.append(
                 [
                     f"p{i}",
-                    A.conditions[int(t.condition[trial])],
-                    float(t.level[trial]),
+                    A.conditions[int(condition[trial])],
+                    float(level[trial]),
                     int(responses[i, trial]),
                 ]
             )
     source, out = _write(tmp_path / "t.csv", rows), tmp_path / "fits.csv"
-    trials.fit_file(source, out, key=jax.random.key(9), n_resamples=100)
+    trials.fit_file(source, out, key=jax.random.key(9), n_resamples=200)
     groups = trials.group_trials(trials.read_trials(source))
     with open(out, newline="") as file:
         written = list(csv.DictReader(file))
@@ -334,9 +339,10 @@ def test_fit_groups_writes_fits_csv(tmp_path):
         zip(groups.participant, groups.condition, strict=True)
     )
     n_yes, n_total = design.counts(A, t, responses)
-    np.testing.assert_array_equal(groups.n_yes, np.asarray(n_yes).reshape(4, 5))
-    np.testing.assert_array_equal(groups.n_total, np.asarray(n_total).reshape(4, 5))
-    np.testing.assert_allclose(groups.levels, np.broadcast_to(A.levels, (4, 5)), atol=1e-12)
+    shape = (2 * n_participants, 5)
+    np.testing.assert_array_equal(groups.n_yes, np.asarray(n_yes).reshape(shape))
+    np.testing.assert_array_equal(groups.n_total, np.asarray(n_total).reshape(shape))
+    np.testing.assert_allclose(groups.levels, np.broadcast_to(A.levels, shape), atol=1e-12)
     wald = trials.fit_groups(groups, key=None, n_resamples=0)
     np.testing.assert_allclose(wald.ci_high - wald.pse, 1.959964 * wald.se_pse, rtol=1e-6)
     for r, pse in zip(written, wald.pse, strict=True):

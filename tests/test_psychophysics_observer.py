@@ -32,15 +32,33 @@ def mesopic_stimuli():
     return O.render_stimuli(M, key=jax.random.key(0), width=48, height=32, fps=4.0)
 
 
+#: Batch of the fits: that of test_psychophysics_fit.py, so that the test
+#: suite compiles the fit once for both files.
+FIT_BATCH = 64
+
+
 def identical(observer, n):
     """``n`` copies of one observer, as a batch."""
     return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), observer)
 
 
+def padded_fit(levels, n_yes, n_total):
+    """``F.fit`` of one dataset per condition, ``(2, L)``, padded with copies
+    of the first to ``FIT_BATCH`` datasets (each is fitted on its own)."""
+    n_yes, n_total = np.asarray(n_yes), np.asarray(n_total)
+    levels = np.broadcast_to(np.asarray(levels, float), n_yes.shape)
+    b = n_yes.shape[0]
+    padded = [
+        np.concatenate([a, np.repeat(a[:1], FIT_BATCH - b, axis=0)])
+        for a in (levels, n_yes, n_total)
+    ]
+    return jax.tree.map(lambda a: a[:b], F.fit(*padded))
+
+
 def pooled_fit(protocol, experiment):
     """One fit per condition of the counts of all observers together."""
     n_yes, n_total = design.counts(protocol, experiment.trials, experiment.responses)
-    return F.fit(protocol.levels, n_yes.sum(0), n_total.sum(0))
+    return padded_fit(protocol.levels, n_yes.sum(0), n_total.sum(0))
 
 
 def test_an_observer_without_cues_is_recovered_by_the_fit():
@@ -65,7 +83,8 @@ def test_an_observer_without_cues_is_recovered_by_the_fit():
 def test_lapses_and_order_bias_give_the_expected_frequencies():
     observer = O.Observer(noise=0.1, bias=0.02, order_bias=0.08, lapse=0.1)
     stimuli = O.plain_stimuli(A)
-    e = O.simulate_observers(jax.random.key(2), A, stimuli, identical(observer, 300))
+    # 400 observers: the batch of the test above (one compilation)
+    e = O.simulate_observers(jax.random.key(2), A, stimuli, identical(observer, 400))
     t = jax.tree.map(np.asarray, e.trials)
     r = np.asarray(e.responses)
     for first in (True, False):
@@ -75,7 +94,7 @@ def test_lapses_and_order_bias_give_the_expected_frequencies():
                 cell = ~t.training & (t.condition == c) & (t.level_index == level)
                 cell &= t.test_first == first
                 n = cell.sum()
-                assert n == 300 * 15  # 30 trials a level and condition, half each order
+                assert n == 400 * 15  # 30 trials a level and condition, half each order
                 freq = r[cell].mean()
                 assert abs(freq - p[c, level]) < 4 * np.sqrt(p[c, level] * (1 - p[c, level]) / n)
     # the order bias is visible: at level 0 the first interval is favoured
@@ -179,12 +198,13 @@ def test_a_cue_weight_moves_the_pse_the_way_its_sign_says(afterimage_stimuli, me
         assert abs(pse[0]) < 1e-3 and sign * pse[1] > 0.03, (protocol.name, cue, pse)
         # simulated, pooled and fitted: near the pseudo-true PSE, the fit of
         # the expected counts (cues that change with the level bend P(x)
-        # away from a cumulative Gaussian), within the fit's sampling error
-        e = O.simulate_observers(jax.random.key(5), protocol, s, identical(observer, 200))
+        # away from a cumulative Gaussian), within the fit's sampling error;
+        # 400 observers, as in the first test (one compilation for both)
+        e = O.simulate_observers(jax.random.key(5), protocol, s, identical(observer, 400))
         f = pooled_fit(protocol, e)
         _, n_total = design.counts(protocol, e.trials, e.responses)
         n = n_total.sum(0)
-        expected = F.fit(protocol.levels, n * O.probability(s, observer), n)
+        expected = padded_fit(protocol.levels, n * O.probability(s, observer), n)
         np.testing.assert_array_less(np.abs(f.pse - expected.pse), 4 * f.se_pse)
         assert sign * (f.pse[1] - f.pse[0]) > 0.03
         np.testing.assert_allclose(expected.pse, pse, atol=1e-3)  # measured: 1.4e-4 at most
@@ -230,14 +250,16 @@ def test_the_vmapped_experiment_equals_a_loop_of_observers():
 
 
 def test_same_key_same_experiment_and_observers_do_not_depend_on_their_number():
-    stimuli, pop = O.plain_stimuli(M), O.POPULATIONS["mesopic"]
-    a = O.simulate(jax.random.key(8), M, stimuli, pop, 6)
-    b = O.simulate(jax.random.key(8), M, stimuli, pop, 6)
-    few = O.simulate(jax.random.key(8), M, stimuli, pop, 2)
-    other = O.simulate(jax.random.key(9), M, stimuli, pop, 6)
+    # 12 observers, as the round trip below, and 4, as the doctest of
+    # O.simulate: the test suite compiles each experiment once.
+    stimuli, pop = O.plain_stimuli(A), O.POPULATIONS["afterimage"]
+    a = O.simulate(jax.random.key(8), A, stimuli, pop, 12)
+    b = O.simulate(jax.random.key(8), A, stimuli, pop, 12)
+    few = O.simulate(jax.random.key(8), A, stimuli, pop, 4)
+    other = O.simulate(jax.random.key(9), A, stimuli, pop, 12)
     for x, y, z in zip(jax.tree.leaves(a), jax.tree.leaves(b), jax.tree.leaves(few), strict=True):
         np.testing.assert_array_equal(x, y)
-        np.testing.assert_array_equal(x[:2], z)
+        np.testing.assert_array_equal(x[:4], z)
     assert not np.array_equal(a.responses, other.responses)
     assert not np.array_equal(a.trials.level, other.trials.level)
 
@@ -271,4 +293,5 @@ def test_bad_inputs_are_named():
         O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), O.Observer())
     for bad in (O.Observer(noise=0.0), O.Observer(lapse=1.0), O.Observer(noise=jnp.nan)):
         with pytest.raises(eqx.EquinoxRuntimeError, match="noise > 0"):
-            O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 2))
+            # 3 observers: the batch of the vmapped experiment above (one compilation)
+            O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 3))

@@ -17,6 +17,14 @@ samples = st.lists(st.integers(-6, 6).map(lambda i: i / 20), min_size=1, max_siz
 SIZE = 15  # samples are padded to this size and masked: one compiled shape
 
 
+#: ``ranksum`` and ``compare`` compiled whole, for the tests that call them on
+#: a few shapes: one compilation per shape and method instead of one per
+#: operation. The paper's values, the float32 test and the doctests call
+#: them eagerly.
+ranksum = jax.jit(stats.ranksum, static_argnames=("continuity", "method"))
+compare = jax.jit(stats.compare, static_argnames=("continuity", "method"))
+
+
 def _padded(values):
     values = np.asarray(values, dtype=float)
     mask = np.arange(SIZE) < values.size
@@ -33,6 +41,13 @@ def _tests(x, x_mask, y, y_mask):
 def _exact_and_auto(x, x_mask, y, y_mask):
     kw = dict(x_mask=x_mask, y_mask=y_mask)
     return stats.ranksum(x, y, method="exact", **kw), stats.ranksum(x, y, **kw)
+
+
+@jax.jit
+def _exact_and_auto_unmasked(x, y):
+    """Both methods without masks: the group sizes are the static shapes, so
+    each pair of sizes is one compilation (instead of one per operation)."""
+    return stats.ranksum(x, y, method="exact"), stats.ranksum(x, y)
 
 
 @given(samples, samples)
@@ -74,10 +89,9 @@ def test_exact_without_masks_matches_scipy(values, data):
     # Static sizes (one stored distribution), no ties, up to 29 against 1.
     n_x = data.draw(st.integers(1, len(values) - 1))
     x, y = values[:n_x], values[n_x:]
-    r = stats.ranksum(jnp.array(x), jnp.array(y), method="exact")
+    r, auto = _exact_and_auto_unmasked(jnp.array(x), jnp.array(y))
     ref = scipy.stats.mannwhitneyu(x, y, method="exact")
     assert float(r.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
-    auto = stats.ranksum(jnp.array(x), jnp.array(y))
     ref = scipy.stats.mannwhitneyu(x, y, method="auto")
     assert float(auto.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
     assert bool(auto.exact) == (min(len(x), len(y)) <= 8)
@@ -118,8 +132,7 @@ def test_exact_approaches_the_asymptotic_p_for_large_groups():
         worst[n] = 0.0
         for shift in np.linspace(0.0, 0.6, 13):
             x, y = rng.normal(shift, 1, n), rng.normal(0, 1, m)
-            exact = stats.ranksum(jnp.array(x), jnp.array(y), method="exact")
-            auto = stats.ranksum(jnp.array(x), jnp.array(y))
+            exact, auto = _exact_and_auto_unmasked(jnp.array(x), jnp.array(y))
             assert bool(exact.exact) and not bool(auto.exact)  # both groups larger than 8
             ref = scipy.stats.mannwhitneyu(x, y, method="exact").pvalue
             assert float(exact.p) == pytest.approx(ref, rel=1e-9, abs=1e-300)
@@ -135,8 +148,8 @@ def test_exact_batches_with_masks_equal_a_loop_and_vmap():
         batch = jax.jit(
             lambda *a, m=method: stats.ranksum(*a[:2], x_mask=a[2], y_mask=a[3], method=m)
         )(x, y, x_mask, y_mask)
-        vmapped = jax.vmap(
-            lambda *a, m=method: stats.ranksum(*a[:2], x_mask=a[2], y_mask=a[3], method=m)
+        vmapped = jax.jit(
+            jax.vmap(lambda *a, m=method: stats.ranksum(*a[:2], x_mask=a[2], y_mask=a[3], method=m))
         )(x, y, x_mask, y_mask)
         np.testing.assert_allclose(vmapped.p, batch.p, rtol=1e-12)
         for i in range(0, 300, 23):
@@ -152,18 +165,18 @@ def test_exact_batches_with_masks_equal_a_loop_and_vmap():
 def test_exact_tables_have_limits_and_methods_are_named():
     big = jnp.linspace(0, 1, 400)
     with pytest.raises(ValueError, match="method='exact'.*use method='asymptotic'"):
-        stats.ranksum(big[:200], big[200:], method="exact")
+        ranksum(big[:200], big[200:], method="exact")
     with pytest.raises(ValueError, match="method: expected 'auto', 'exact' or 'asymptotic'"):
-        stats.ranksum(big[:3], big[3:6], method="permutation")
+        ranksum(big[:3], big[3:6], method="permutation")
     # Masked groups padded past the table's limit: auto falls back to the
     # approximation for every element and says so.
     x, y = jnp.linspace(0, 1, 9), jnp.linspace(2, 3, 800)
-    r = stats.ranksum(x, y, x_mask=jnp.arange(9) < 5, y_mask=jnp.arange(800) < 700)
+    r = ranksum(x, y, x_mask=jnp.arange(9) < 5, y_mask=jnp.arange(800) < 700)
     assert not bool(r.exact)
     ref = scipy.stats.mannwhitneyu(np.asarray(x[:5]), np.asarray(y[:700]), method="asymptotic")
     assert float(r.p) == pytest.approx(ref.pvalue, rel=1e-9)
     # Unmasked, the same sizes need one distribution: exact, as SciPy's auto.
-    r = stats.ranksum(x[:5], y[:700])
+    r = ranksum(x[:5], y[:700])
     assert bool(r.exact)
     ref = scipy.stats.mannwhitneyu(np.asarray(x[:5]), np.asarray(y[:700]))
     assert float(r.p) == pytest.approx(ref.pvalue, rel=1e-9)
@@ -214,21 +227,21 @@ def test_masks_equal_the_subsets_and_batches_equal_a_loop():
         assert float(batch.test.n_x[i]) == len(xi)
         assert float(batch.median_x[i]) == pytest.approx(np.median(xi))
         assert float(batch.shift[i]) == pytest.approx(np.median(np.subtract.outer(xi, yi)))
-    vmapped = jax.vmap(stats.compare)(x, y, x_mask=x_mask, y_mask=y_mask)
+    vmapped = jax.jit(jax.vmap(stats.compare))(x, y, x_mask=x_mask, y_mask=y_mask)
     np.testing.assert_allclose(vmapped.test.p, batch.test.p, rtol=1e-12)
 
 
 def test_empty_group_and_no_variation_give_no_evidence():
     x = jnp.array([0.1, 0.2, 0.3])
-    empty = stats.compare(x, jnp.array([0.5, 0.6]), y_mask=jnp.array([False, False]))
+    empty = compare(x, jnp.array([0.5, 0.6]), y_mask=jnp.array([False, False]))
     assert float(empty.test.p) == 1.0 and float(empty.test.z) == 0.0
     assert float(empty.rank_biserial) == 0.0
     assert np.isnan(float(empty.median_y)) and np.isnan(float(empty.shift))
-    tied = stats.ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2))
+    tied = ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2))
     assert float(tied.p) == 1.0 and not bool(tied.exact)  # auto: tied, asymptotic
-    assert float(stats.ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2), method="exact").p) == 1.0
+    assert float(ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2), method="exact").p) == 1.0
     for method in ("auto", "exact"):
-        empty = stats.ranksum(x, jnp.array([0.5, 0.6]), y_mask=jnp.zeros(2, bool), method=method)
+        empty = ranksum(x, jnp.array([0.5, 0.6]), y_mask=jnp.zeros(2, bool), method=method)
         assert float(empty.p) == 1.0
 
 

@@ -500,12 +500,17 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     Returns
     -------
     State
-        Scalars, or ``(H, W)`` maps with a local background.
+        Scalars, or ``(H, W)`` maps with a local background, in the frame's
+        dtype (the dtype :func:`run` returns its final state in, so that a
+        sequence run in chunks compiles ``run`` once).
     """
     if adaptation is not None:
-        A = jnp.asarray(adaptation, dtype=jnp.result_type(float))
-        return static_state(params, A, A)
+        floating = first_frame is not None and jnp.issubdtype(first_frame.dtype, jnp.floating)
+        dtype = first_frame.dtype if floating else jnp.result_type(float)
+        A = jnp.asarray(adaptation, dtype=dtype)
+        return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
+    params = as_dtype(params, first_frame.dtype)
     gaze = _centre(first_frame) if gaze is None else gaze
     G_rod, G_cone = frame_goals(params, first_frame, gaze)
     return static_state(params, G_rod + guard, G_cone + guard)
