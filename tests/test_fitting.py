@@ -284,6 +284,10 @@ def test_bad_input_is_named():
         fitting.fit(log_threshold, START, "t0_rod", data, args=ARGS, bounds={"c_rod": None})
     with pytest.raises(ValueError, match="weights: expected a shape that broadcasts"):
         fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=np.ones(3))
+    with pytest.raises(ValueError, match="max_steps: expected at least 1"):
+        fitting.fit(log_threshold, START, NAMES, data, args=ARGS, max_steps=0)
+    with pytest.raises(ValueError, match="weights: expected non-negative"):
+        fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=-np.ones(44))
     with pytest.raises(ValueError, match="jac: expected 'fwd' or 'bwd'"):
         fitting.fit(log_threshold, START, NAMES, data, args=ARGS, jac="central")
     with pytest.raises(ValueError, match="params: expected a parameter module"):
@@ -370,6 +374,95 @@ def test_vmapped_fits_equal_looped_fits(decays):
             assert float(single.se[name]) == pytest.approx(float(batch.se[name][i]), rel=1e-7)
         assert int(single.steps) == int(batch.steps[i])
         assert bool(single.converged) == bool(batch.converged[i])
+
+
+@pytest.fixture(scope="module")
+def uneven():
+    """Six decays whose fits take from 6 to 256 steps, and their fit by one
+    vmapped solve (six datasets fit in the default lanes). Rows: two badly
+    conditioned ones (a weak decay, 53 steps, and a slow one, 36 steps; a
+    and b correlated at 0.96 and 0.99), three noisy ones as in ``decays``,
+    and a flat one, which never meets the tolerance (256 steps)."""
+    t = np.asarray(T)
+    rng = np.random.default_rng(1)
+    weak = 0.05 * np.exp(-t / 1.5) + 0.3 + SD * rng.standard_normal(t.size)
+    slow = 2.0 * np.exp(-t / 5.0) + 0.3
+    noisy = (
+        2.0 * np.exp(-t / 0.7) + 0.3 + SD * np.random.default_rng(0).standard_normal((3, t.size))
+    )
+    data = np.stack([weak, slow, *noisy, np.full(t.size, 0.4)])
+    return data, fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
+
+
+def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
+    # Two lanes for six datasets: each lane takes the next dataset when its
+    # fit stops, and the host hands the queue over two datasets at a time,
+    # so that the weak decay's solve (53 steps) is stopped at a round's end
+    # and carried on with its whole solver state. Every number equals the
+    # uninterrupted vmapped solve's, step counts included.
+    data, plain = uneven
+    steps = np.asarray(plain.steps)
+    np.testing.assert_array_equal(steps, [53, 36, 8, 6, 6, 256])
+    monkeypatch.setattr(fitting, "LANES", 2)
+    traces = []
+    original = fitting._fit_one
+
+    def counting(*args, **kwargs):
+        traces.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(fitting, "_fit_one", counting)
+    queued = fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
+    assert traces == []  # the queue, not the vmapped solve
+    np.testing.assert_array_equal(queued.steps, steps)
+    for name in ("converged", "solved", "n_masked"):
+        np.testing.assert_array_equal(getattr(queued, name), getattr(plain, name))
+    for name in ABC:
+        np.testing.assert_allclose(queued.estimate[name], plain.estimate[name], rtol=1e-12)
+        np.testing.assert_allclose(queued.se[name], plain.se[name], rtol=1e-9)
+    for a, b in zip(jax.tree.leaves(queued), jax.tree.leaves(plain), strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeypatch):
+    # The flat row: a -> 0 leaves b undetermined, and the solver runs out of
+    # steps; the weak and slow rows are badly conditioned but converge.
+    data, _ = uneven
+    monkeypatch.setattr(fitting, "LANES", 2)
+    f = fitting.fit(decay, Decay(), ABC, data[::-1], args=T, bounds=UNBOUNDED_C)
+    np.testing.assert_array_equal(f.steps, [256, 6, 6, 8, 36, 53])
+    np.testing.assert_array_equal(f.converged, [False, True, True, True, True, True])
+    assert not bool(f.solved[0])
+    for leaf in jax.tree.leaves(f):
+        assert not np.any(np.isnan(np.asarray(leaf)))
+    assert np.all(np.isfinite(f.residuals)) and np.all(np.isfinite(f.loss))
+    np.testing.assert_allclose(f.estimate["c"][0], 0.4, rtol=1e-4)
+    # The compiled functions see the lanes, not the datasets: another number
+    # of datasets traces nothing anew.
+    traces = []
+    original = fitting._Lane.__init__
+
+    def counting(self, *args):
+        traces.append(1)
+        original(self, *args)
+
+    monkeypatch.setattr(fitting._Lane, "__init__", counting)
+    g = fitting.fit(decay, Decay(), ABC, data[1:4], args=T, bounds=UNBOUNDED_C)
+    assert traces == []
+    np.testing.assert_array_equal(g.steps, [36, 8, 6])
+
+
+def test_a_traced_call_is_one_vmapped_solve(decays, monkeypatch):
+    # Under jit (or vmap) there is no host to keep a queue: the batch is
+    # fitted in one vmapped solve, whatever the lanes.
+    data, f = decays
+    monkeypatch.setattr(fitting, "LANES", 1)
+    traced = jax.jit(lambda d: fitting.fit(decay, Decay(), ABC, d, args=T, bounds=UNBOUNDED_C))
+    g = traced(data)
+    np.testing.assert_array_equal(g.steps, f.steps)
+    for name in ABC:
+        np.testing.assert_allclose(g.estimate[name], f.estimate[name], rtol=1e-12)
 
 
 def test_bounds_are_respected(decays):
