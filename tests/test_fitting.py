@@ -394,6 +394,20 @@ def uneven():
     return data, fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
 
 
+def _count_calls(monkeypatch, name):
+    """A list that gains an entry whenever ``fitting.<name>`` is called
+    (traced): ``[]`` afterwards means nothing was traced anew."""
+    calls = []
+    original = getattr(fitting, name)
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(fitting, name, counting)
+    return calls
+
+
 def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
     # Two lanes for six datasets: each lane takes the next dataset when its
     # fit stops, and the host hands the queue over two datasets at a time,
@@ -404,14 +418,7 @@ def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
     steps = np.asarray(plain.steps)
     np.testing.assert_array_equal(steps, [53, 36, 8, 6, 6, 256])
     monkeypatch.setattr(fitting, "LANES", 2)
-    traces = []
-    original = fitting._fit_one
-
-    def counting(*args, **kwargs):
-        traces.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(fitting, "_fit_one", counting)
+    traces = _count_calls(monkeypatch, "_fit_one")
     queued = fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
     assert traces == []  # the queue, not the vmapped solve
     np.testing.assert_array_equal(queued.steps, steps)
@@ -545,13 +552,6 @@ def test_float32_follows_the_data_and_another_batch_does_not_retrace(decays, mon
         for name in ABC:
             np.testing.assert_allclose(f32.estimate[name], f64.estimate[name], rtol=1e-3)
             np.testing.assert_allclose(f32.se[name], f64.se[name], rtol=1e-2)
-        traces = []
-        original = fitting._fit_one
-
-        def counting(*args, **kwargs):
-            traces.append(1)
-            return original(*args, **kwargs)
-
-        monkeypatch.setattr(fitting, "_fit_one", counting)
+        traces = _count_calls(monkeypatch, "_fit_one")
         fitting.fit(decay, Decay(), ABC, data.astype(np.float32) + 0.01, **kw)
         assert traces == []
