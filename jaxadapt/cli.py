@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxadapt import runtime
+
 FORMATS = ("png", "mp4", "exr", "pfm")
 OPERATORS = (
     "pattanaik2000",
@@ -555,6 +557,7 @@ def main(argv=None):
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
     console = Console(stderr=True)
     import equinox as eqx
 

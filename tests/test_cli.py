@@ -5,7 +5,7 @@ import csv
 import numpy as np
 import pytest
 
-from jaxadapt import io
+from jaxadapt import io, runtime
 from jaxadapt.cli import main
 
 SMALL = ["--size", "48x32", "--duration", "0.3"]
@@ -87,8 +87,11 @@ def _assert_one_line_error(status, err, *words):
         assert w in lines[0]
 
 
-def test_missing_file(tmp_path, capsys):
+def test_missing_file(tmp_path, capsys, monkeypatch):
+    calls = []
+    monkeypatch.setattr(runtime, "retain_freed_memory", lambda: calls.append(1))
     status, err = _run(capsys, "render", str(tmp_path / "nope.exr"), "--out", str(tmp_path / "o"))
+    assert calls == [1]  # the command line keeps freed memory for reuse
     _assert_one_line_error(status, err, "nope.exr", "no such file")
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
 

@@ -180,6 +180,22 @@ def test_tone_map_is_the_colour_ratio_power_and_differentiable_at_black():
     assert jnp.all(jnp.isfinite(grad))
 
 
+def test_gradient_is_finite_where_pixels_fall_below_display_black():
+    # A tunnel frame seen by an eye still adapted to daylight: most pixels
+    # map below display black, where the display luminance is 0 and its log
+    # is floored. Their gradient must be 0, not NaN (float32, compiled).
+    frames = jnp.concatenate([jnp.full((2, 4, 4, 3), 5e3), jnp.full((3, 4, 4, 3), 5.0)])
+    frames = frames.at[:, 0, 0].set(0.0).astype(jnp.float32)
+
+    def out(t0_cone):
+        return op.run(op.Params(t0_cone=t0_cone), frames, jnp.float32(1 / 30))[0]
+
+    below = out(jnp.float32(0.08))[2:] == 0
+    assert jnp.sum(below) > 10
+    tangent = jax.jit(jax.jacfwd(out))(jnp.float32(0.08))
+    assert jnp.all(jnp.isfinite(tangent))
+
+
 def test_float32_matches_float64():
     frames = _sequence()
     out64, _ = op.run(P, frames, 0.03)

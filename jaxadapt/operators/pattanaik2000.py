@@ -43,8 +43,8 @@ from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
     forward_difference_slope,
+    log_naka_rushton_sum_inverse,
     naka_rushton,
-    naka_rushton_sum_inverse,
     response_slope,
     sigma_cone,
     sigma_rod,
@@ -279,19 +279,25 @@ def display_slope(params):
     return forward_difference_slope(w * A, w * A / params.black_ratio, sigma_c, B_cone, params.n)
 
 
-def display_luminance(params, R):
-    """Luminance (cd/m2) of a neutral display pixel that evokes response ``R``.
+def display_log_luminance(params, R):
+    """Log of the luminance (cd/m2) of a neutral display pixel that evokes response ``R``.
 
     The inverse of the display observer's ``R_lum(L) = R_rod(L) + R_cone(L)``
     (Eq 2 with the constants of §4.3), solved exactly
-    (:func:`~jaxadapt.physiology.response.naka_rushton_sum_inverse`). ``R``
-    is first clipped to ``[0, REF_wht]``: the display cannot show more than
-    its white.
+    (:func:`~jaxadapt.physiology.response.log_naka_rushton_sum_inverse`).
+    ``R`` is first clipped to ``[0, REF_wht]``: the display cannot show more
+    than its white.
     """
     sigma_r, sigma_c, B_rod, B_cone = _display_observer(params)
     white, _ = display_references(params)
     R = jnp.clip(R, 0.0, white)
-    return naka_rushton_sum_inverse(R, sigma_r, B_rod, sigma_c, B_cone, params.n)
+    return log_naka_rushton_sum_inverse(R, sigma_r, B_rod, sigma_c, B_cone, params.n)
+
+
+def display_luminance(params, R):
+    """Luminance (cd/m2) of a neutral display pixel that evokes response ``R``:
+    ``exp`` of :func:`display_log_luminance` (0 for ``R <= 0``)."""
+    return jnp.exp(display_log_luminance(params, R))
 
 
 def inverse_appearance(params, ref_white, ref_black):
@@ -368,8 +374,9 @@ def tone_map(params, obs, rgb):
     (``L_cone = 0``) have neutral colour ratios.
 
     Each channel costs one exponential: ``out = exp(e ln rgb + s)`` with the
-    pixel's ``s = ln(L_d / L_white) - e ln L_cone``; a display luminance of 0
-    enters as the smallest normal float (its output is below 1e-30). Black
+    pixel's ``s = ln L_d - ln L_white - e ln L_cone``, and ``ln L_d`` comes
+    from the display inverse in its log form (:func:`display_log_luminance`:
+    a display luminance of 0 enters below 1e-49 cd/m2, an output of 0). Black
     pixels get their neutral ratio from adding 1 to ``rgb`` and ``L_cone``
     there, not from a select on a per-pixel test broadcast over the
     channels: XLA's CPU backend evaluates the exponentials after such a
@@ -380,12 +387,11 @@ def tone_map(params, obs, rgb):
     R_lum = luminance_response(
         params, L_rod, L_cone, obs.sigma_rod, obs.sigma_cone, obs.B_rod, obs.B_cone
     )
-    L_d = display_luminance(params, obs.scale * R_lum + obs.offset)
+    ln_L_d = display_log_luminance(params, obs.scale * R_lum + obs.offset)
     e = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n) / display_slope(params)
-    tiny = jnp.finfo(rgb.dtype).tiny
     white_d = params.white_factor * params.display_adaptation
     black = (L_cone <= 0).astype(rgb.dtype)
-    s = jnp.log(jnp.maximum(L_d / white_d, tiny)) - e * jnp.log(L_cone + black)
+    s = ln_L_d - jnp.log(white_d) - e * jnp.log(L_cone + black)
     rgb = rgb + black[..., None]
     lit = rgb > 0
     out = jnp.exp(e[..., None] * jnp.log(jnp.where(lit, rgb, 1.0)) + s[..., None])

@@ -93,8 +93,8 @@ def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
     return sigma * power(R / (B - R), 1.0 / n)
 
 
-def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
-    """Luminance at which two Naka-Rushton responses with one exponent sum to ``R``.
+def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
+    """Log of the luminance at which two Naka-Rushton responses with one exponent sum to ``R``.
 
     Solves ``R = B_1 x_1 / (1 + x_1) + B_2 x_2 / (1 + x_2)`` with
     ``x_i = (L / sigma_i)^n`` exactly: the display observer's ``R_rod +
@@ -107,7 +107,16 @@ def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     whose leading coefficient is negative and constant term non-negative
     for ``0 <= R < B_1 + B_2``, so it has exactly one root ``u >= 0``
     (the sum is increasing in ``u``). It is taken in the cancellation-free
-    form of the quadratic formula; then ``L = sigma_2 u^(1/n)``.
+    form of the quadratic formula; then ``ln L = ln sigma_2 + (ln u) / n``.
+
+    The logarithm is the primary form because the display path of the
+    operator needs ``ln L`` (its output is ``exp(... + ln L)``): forming
+    ``L`` and taking its log again would cost an exponential and a log per
+    pixel. A root at or below the smallest normal float (``R = 0`` gives
+    ``u = 0``) enters as that float, ``L`` below 1e-49 cd/m2 (0 once
+    exponentiated), with a zero gradient. That floor is a select, not
+    ``log(max(u, tiny))``, whose gradient XLA's compiled code made NaN where
+    ``u = 0`` (``tests/test_pattanaik2000.py``).
 
     Parameters
     ----------
@@ -123,13 +132,13 @@ def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     Returns
     -------
     array
-        Luminance, cd/m2.
+        ``ln L``, L in cd/m2.
 
     Examples
     --------
     >>> L = 30.0
     >>> R = naka_rushton(L, 722.0, 0.0016) + naka_rushton(L, 646.0, 1.0)
-    >>> round(float(naka_rushton_sum_inverse(R, 722.0, 0.0016, 646.0, 1.0)), 6)
+    >>> round(float(jnp.exp(log_naka_rushton_sum_inverse(R, 722.0, 0.0016, 646.0, 1.0))), 6)
     30.0
     """
     k = power(sigma_1 / sigma_2, n)
@@ -138,7 +147,24 @@ def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     c = R * k
     q = -0.5 * (b + jnp.where(b >= 0, 1.0, -1.0) * jnp.sqrt(jnp.maximum(b * b - 4.0 * a * c, 0)))
     u = jnp.where(b >= 0, q / a, c / jnp.where(q == 0, 1.0, q))
-    return sigma_2 * power(u, 1.0 / n)
+    tiny = jnp.finfo(jnp.result_type(u)).tiny
+    positive = u > tiny
+    ln_u = jnp.where(positive, jnp.log(jnp.where(positive, u, 1.0)), jnp.log(tiny))
+    return jnp.log(sigma_2) + ln_u / n
+
+
+def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
+    """Luminance (cd/m2) at which two Naka-Rushton responses sum to ``R``:
+    ``exp`` of :func:`log_naka_rushton_sum_inverse` (0 for ``R = 0``).
+
+    Examples
+    --------
+    >>> L = 30.0
+    >>> R = naka_rushton(L, 722.0, 0.0016) + naka_rushton(L, 646.0, 1.0)
+    >>> round(float(naka_rushton_sum_inverse(R, 722.0, 0.0016, 646.0, 1.0)), 6)
+    30.0
+    """
+    return jnp.exp(log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n))
 
 
 def response_slope(L, sigma, B=1.0, n=N_HUNT):
@@ -204,7 +230,7 @@ def hunt_F_L(A):
     luminance ``A`` (cd/m2). Eq 5 of the paper is ``2^(1/n) 5A / F_L``.
     """
     k4 = (1.0 / (5.0 * A + 1.0)) ** 4
-    return 0.2 * k4 * (5.0 * A) + 0.1 * (1.0 - k4) ** 2 * (5.0 * A) ** (1.0 / 3.0)
+    return 0.2 * k4 * (5.0 * A) + 0.1 * (1.0 - k4) ** 2 * power(5.0 * A, 1.0 / 3.0)
 
 
 def hunt_F_LS(A):
@@ -219,7 +245,7 @@ def hunt_F_LS(A):
     the three agree to better than 1e-6 relative above 1e-3 cd/m2.
     """
     j2 = (1.0 / (5e5 * A + 1.0)) ** 2
-    return 3800.0 * j2 * (5.0 * A) + 0.2 * (1.0 - j2) ** 4 * (5.0 * A) ** (1.0 / 6.0)
+    return 3800.0 * j2 * (5.0 * A) + 0.2 * (1.0 - j2) ** 4 * power(5.0 * A, 1.0 / 6.0)
 
 
 def sigma_cone(A, n=N_HUNT):
