@@ -83,7 +83,8 @@ def relaxation_sequence(y0, relaxation, dt):
     + b2)``, so every prefix of the sequence is found by
     ``jax.lax.associative_scan`` in ``log2 T`` vectorised rounds instead of
     a loop of ``T`` dependent steps; the states are then ``A_k y0 + B_k``.
-    Equal to a loop of :func:`relaxation_step` up to rounding.
+    Equal to a loop of :func:`relaxation_step` up to rounding, and so are
+    its derivatives (:func:`_affine_sequence`).
 
     Parameters
     ----------
@@ -101,13 +102,41 @@ def relaxation_sequence(y0, relaxation, dt):
     """
     dt = jnp.reshape(dt, dt.shape + (1,) * (jnp.ndim(relaxation.rate) - jnp.ndim(dt)))
     a, b = affine_step(relaxation, dt)
+    y0 = jnp.broadcast_to(y0, jnp.broadcast_shapes(a.shape, b.shape)[1:])
+    return _affine_sequence(y0, a, b)
+
+
+def _prefix_states(y0, a, b):
+    """``y0`` and the states after each map ``y -> a_k y + b_k`` (leading
+    axis ``k``), all at once by the associative scan of their compositions."""
 
     def compose(first, then):
         return then[0] * first[0], then[0] * first[1] + then[1]
 
     A, B = jax.lax.associative_scan(compose, (a, b))
-    y0 = jnp.broadcast_to(y0, A.shape[1:])
     return jnp.concatenate([y0[None], A * y0 + B])
+
+
+@jax.custom_jvp
+def _affine_sequence(y0, a, b):
+    """:func:`_prefix_states`, with the derivative of the recurrence it solves.
+
+    Differentiating ``y_(k+1) = a_k y_k + b_k`` gives ``dy_(k+1) = a_k dy_k +
+    (da_k y_k + db_k)``: the same recurrence with new offsets, so the
+    tangent is one more scan of the same kind, linear in the tangents.
+    JAX's own derivative of the scan would also carry the tangents of every
+    product of the ``a_k``: in ``benchmarks/bench_fitting.py`` the Jacobian
+    took 1.2 times as long and the fits 1.15 times as long.
+    """
+    return _prefix_states(y0, a, b)
+
+
+@_affine_sequence.defjvp
+def _affine_sequence_jvp(primals, tangents):
+    y0, a, b = primals
+    dy0, da, db = tangents
+    y = _affine_sequence(y0, a, b)
+    return y, _prefix_states(dy0, a, da * y[:-1] + db)
 
 
 def _at(G, t):
