@@ -9,9 +9,10 @@ t0_rod, t0_cone, tau_rod and tau_cone (the paper's values times log-normal
 factors, 20 %) and Gaussian noise of 0.05 log units.
 
 * jaxadapt: :func:`jaxadapt.fitting.fit` of the four constants (in log
-  units) for all observers in one call: Levenberg-Marquardt with exact
-  forward-mode Jacobians through ``run`` (the model linearised once a step,
-  each constant's tangent pushed through that linearisation alone), in a
+  units) for all observers in one call: Levenberg-Marquardt (Nielsen's
+  damping, scaled to ``J' J`` at the start) with exact forward-mode
+  Jacobians through ``run`` (the model linearised once a step, each
+  constant's tangent pushed through that linearisation alone), in a
   queue of ``fitting.LANES`` (64) vmapped solver lanes: a lane whose fit
   stops takes the next observer, so that no fit waits for the slowest.
 * peer: a loop of ``scipy.optimize.least_squares`` (``method="lm"``, MINPACK,
@@ -33,8 +34,8 @@ average before and after.
 The SciPy loops fit the first ``--peer`` (all 1,000 by default) and
 ``--eager-peer`` (20) observers once; a subset scales linearly, recorded as
 such. The estimates are compared where both fits converged. Both sides stop
-by MINPACK's ``ftol = 1e-8`` test (jaxadapt's LevenbergMarquardt adds it to
-optimistix's own tests).
+by MINPACK's ``ftol = 1e-8`` test (jaxadapt's LevenbergMarquardt adds it,
+and MINPACK's ``xtol`` test, to optimistix's own tests).
 
 Usage::
 
@@ -210,7 +211,8 @@ def main():
             "mean_steps": float(np.mean(np.asarray(fits.steps))),
             "max_steps": int(np.max(np.asarray(fits.steps))),
             "lanes": fitting.LANES,
-            "method": "fitting.fit: optimistix LevenbergMarquardt (and MINPACK's ftol), "
+            "method": "fitting.fit: optimistix LevenbergMarquardt with Nielsen's damping "
+            "(and MINPACK's ftol and xtol tests), "
             "forward-mode Jacobians (one linearisation, one tangent per constant), log "
             "parameters, a queue of vmapped solver lanes over observers, float64",
         },

@@ -32,7 +32,8 @@ What it shows (numbers printed by the run and written to ``summary.json``):
   a small plateau, where thresholds depend on ``M_max`` and delta only
   through their ratio (scaling both leaves the threshold of §6.2.4
   unchanged while ``M + delta << 1``): the fit is flagged (``converged``
-  False, standard errors inf) and only ``q`` is determined. Holding
+  False, their standard errors inf); ``q`` and the plateau's
+  semi-saturation are determined. Holding
   ``M_max`` at the rods' value identifies the rest (delta then comes out
   several times smaller than the rods': one criterion cannot give both
   Weber fractions, 10 % and 2 %, with ``R_max = 1``).
@@ -56,7 +57,6 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from common import setup  # noqa: E402
-from fit_time_constants import sensitivity  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
@@ -68,7 +68,7 @@ from jaxadapt.physiology.response import (  # noqa: E402
     sigma_cone,
     sigma_rod,
 )
-from jaxadapt.physiology.threshold import tvi_cone, tvi_rod  # noqa: E402
+from jaxadapt.physiology.threshold import increment_sensitivity, tvi_cone, tvi_rod  # noqa: E402
 
 #: Background ranges (log10 cd/m2) over which each curve is fitted.
 RANGES = {"rods": (-5.0, 1.0), "cones": (-2.0, 5.0)}
@@ -121,7 +121,7 @@ def plateau_thresholds(observer, log_L):
         n=observer.n,
     )
     sigma = jacobs2015.semi_saturation(law, log_L)
-    s = sensitivity(10.0**log_L, sigma, 1.0, observer.n, observer.criterion)
+    s = increment_sensitivity(10.0**log_L, sigma, observer.criterion, 1.0, observer.n)
     return -jnp.log10(jnp.maximum(s, 1.0 / CEILING))
 
 
@@ -138,7 +138,7 @@ def hunt_thresholds(observer, args):
     n = 0.73
     sigma = jnp.where(cones > 0, sigma_cone(L, n), sigma_rod(L, n))
     B = jnp.where(cones > 0, bleach_cone(L), bleach_rod(L))
-    s = sensitivity(L, sigma, B, n, observer.criterion)
+    s = increment_sensitivity(L, sigma, observer.criterion, B, n)
     return -jnp.log10(jnp.maximum(s, 1.0 / CEILING))
 
 
