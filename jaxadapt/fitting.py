@@ -270,7 +270,8 @@ class NielsenDamping(optx.AbstractSearch):
     of 0.5 to 0.9) keeps its damping and creeps. On the 1,000 fits of
     ``benchmarks/bench_fitting.py`` this rule took 6.8 steps a fit on
     average instead of 8.8 (median 6 instead of 8, longest 34 instead of
-    45), with the same estimates.
+    45), and its estimates came closer to MINPACK's (at most 1.1 standard
+    errors apart instead of 20).
 
     Used by :class:`LevenbergMarquardt` with least-squares functions
     (residuals and Jacobian); the step size it returns is ``1 / lambda``,
