@@ -260,7 +260,8 @@ class NielsenDamping(optx.AbstractSearch):
     """The damping of Levenberg-Marquardt by Nielsen's rule, scaled to the problem.
 
     The first evaluation sets ``lambda_0 = tau max_j (J' J)_jj`` (Madsen,
-    Nielsen and Tingleff 2004, §3.2, with their default ``tau = 1e-3``);
+    Nielsen and Tingleff 2004, §3.2, with their default ``tau = 1e-3``; 1
+    where ``J`` is zero);
     every later one updates it by :func:`nielsen_update` from the gain
     ratio of the step. The search of ``optimistix.LevenbergMarquardt``
     (``ClassicalTrustRegion``) instead starts from ``lambda = 1`` whatever
