@@ -18,5 +18,5 @@ python3 benchmarks/bench_jacobs2015.py --size 1920x1080 --frames 60 --repeats 5 
     --device-label $label
 cp benchmarks/results/*${label}*.json "${OUT:-/tmp}/"
 # GPU correctness: the operator and kinetics tests on the GPU backend.
-python3 -m pytest -o addopts="" -q -p no:cacheprovider -p no:warnings tests/test_pattanaik2000.py tests/test_jacobs2015.py \
+python3 -m pytest -o addopts="" -q -p no:cacheprovider -p no:warnings tests/test_pattanaik2000.py tests/test_fused.py tests/test_jacobs2015.py \
     tests/test_kinetics.py tests/test_kinetics_jacobs.py 2>&1 | tail -3

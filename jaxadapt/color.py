@@ -85,12 +85,17 @@ def transform(x, M):
 
     def sums(x):
         channels = [x[..., j] for j in range(x.shape[-1])]
-        rows = [sum(m[j] * c for j, c in enumerate(channels)) for m in M.reshape(-1, 3)]
+        rows = [combine(m, channels) for m in M.reshape(-1, 3)]
         return rows[0] if M.ndim == 1 else jnp.stack(rows, axis=-1)
 
     if M.ndim == 1:
         return sums(x)
     return jax.lax.platform_dependent(x, cpu=lambda x: x @ M.T, default=sums)
+
+
+def combine(weights, channels):
+    """``sum_j w_j c_j``: weights ``(3,)`` applied to channel planes ``[c_0, c_1, c_2]``."""
+    return sum(jnp.asarray(w, c.dtype) * c for w, c in zip(weights, channels, strict=True))
 
 
 def photopic_luminance(rgb):

@@ -37,7 +37,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt.color import photopic_luminance, scotopic_luminance
+from jaxadapt import fused
+from jaxadapt.color import (
+    W_PHOTOPIC,
+    W_SCOTOPIC,
+    combine,
+    photopic_luminance,
+    scotopic_luminance,
+)
 from jaxadapt.operators import goal as goals
 from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
 from jaxadapt.physiology import kinetics
@@ -152,10 +159,27 @@ class State(NamedTuple):
     B_cone: jax.Array
 
 
+class Display(NamedTuple):
+    """The display observer's constants (§4.3) that the pixel map uses:
+    sigma and B of both receptors adapted to ``display_adaptation``, its
+    response to display white ``REF_wht``, its colour exponent ``S_d`` and
+    the natural log of display white, ``ln(white_factor A_d)`` (cd/m2)."""
+
+    sigma_rod: jax.Array
+    sigma_cone: jax.Array
+    B_rod: jax.Array
+    B_cone: jax.Array
+    white: jax.Array
+    slope: jax.Array
+    log_white: jax.Array
+
+
 class Observer(NamedTuple):
     """Everything the pixel map needs from one frame's adaptation: sigma and B
-    of both receptors and the affine map of the inverse appearance model
-    (display response = ``scale * R_lum + offset``)."""
+    of both receptors, the affine map of the inverse appearance model
+    (display response = ``scale * R_lum + offset``) and the display
+    observer's constants. Scalars computed once per frame, so that the
+    pixel map does not repeat them per pixel."""
 
     sigma_rod: jax.Array
     sigma_cone: jax.Array
@@ -164,6 +188,7 @@ class Observer(NamedTuple):
     scale: jax.Array
     offset: jax.Array
     rule: jax.Array
+    display: Display
 
 
 class Diagnostics(NamedTuple):
@@ -279,8 +304,23 @@ def display_slope(params):
     return forward_difference_slope(w * A, w * A / params.black_ratio, sigma_c, B_cone, params.n)
 
 
+def display(params):
+    """The display observer's constants (:class:`Display`)."""
+    sigma_r, sigma_c, B_rod, B_cone = _display_observer(params)
+    white, _ = display_references(params)
+    log_white = jnp.log(params.white_factor * params.display_adaptation)
+    return Display(sigma_r, sigma_c, B_rod, B_cone, white, display_slope(params), log_white)
+
+
 def display_log_luminance(params, R):
-    """Log of the luminance (cd/m2) of a neutral display pixel that evokes response ``R``.
+    """Log of the luminance (cd/m2) of a neutral display pixel that evokes response ``R``:
+    :func:`inverse_display` with the constants of ``params``."""
+    return inverse_display(display(params), R, params.n)
+
+
+def inverse_display(d, R, n):
+    """Log of the luminance (cd/m2) at which the display observer ``d``
+    (:class:`Display`) responds ``R``.
 
     The inverse of the display observer's ``R_lum(L) = R_rod(L) + R_cone(L)``
     (Eq 2 with the constants of §4.3), solved exactly
@@ -288,10 +328,8 @@ def display_log_luminance(params, R):
     ``R`` is first clipped to ``[0, REF_wht]``: the display cannot show more
     than its white.
     """
-    sigma_r, sigma_c, B_rod, B_cone = _display_observer(params)
-    white, _ = display_references(params)
-    R = jnp.clip(R, 0.0, white)
-    return log_naka_rushton_sum_inverse(R, sigma_r, B_rod, sigma_c, B_cone, params.n)
+    R = jnp.clip(R, 0.0, d.white)
+    return log_naka_rushton_sum_inverse(R, d.sigma_rod, d.B_rod, d.sigma_cone, d.B_cone, n)
 
 
 def display_luminance(params, R):
@@ -341,7 +379,9 @@ def observer(params, state):
         params, sigma_r, sigma_c, state.B_rod, state.B_cone, state.A_rod, state.A_cone
     )
     scale, offset, rule = inverse_appearance(params, ref_white, ref_black)
-    return Observer(sigma_r, sigma_c, state.B_rod, state.B_cone, scale, offset, rule)
+    return Observer(
+        sigma_r, sigma_c, state.B_rod, state.B_cone, scale, offset, rule, display(params)
+    )
 
 
 # -- the pixel map ------------------------------------------------------------
@@ -382,19 +422,42 @@ def tone_map(params, obs, rgb):
     channels: XLA's CPU backend evaluates the exponentials after such a
     select unvectorised, four times slower.
     """
-    L_cone = photopic_luminance(rgb)
-    L_rod = scotopic_luminance(rgb)
+    e, s, black = pixel_terms(params, obs, scotopic_luminance(rgb), photopic_luminance(rgb))
+    return display_value(e[..., None], s[..., None], black[..., None], rgb)
+
+
+def tone_map_planes(params, obs, channels):
+    """:func:`tone_map` on channel planes ``[r, g, b]``, for a fused kernel
+    (:func:`jaxadapt.fused.map_pixels`): the same terms, once per pixel."""
+    L_rod, L_cone = (combine(w, channels) for w in (W_SCOTOPIC, W_PHOTOPIC))
+    e, s, black = pixel_terms(params, obs, L_rod, L_cone)
+    return [display_value(e, s, black, c) for c in channels]
+
+
+def pixel_terms(params, obs, L_rod, L_cone):
+    """What the pixel map needs of a pixel's luminances (cd/m2): ``(e, s, black)``.
+
+    ``e = S_color / S_d`` is the colour exponent, ``s = ln L_d - ln L_white
+    - e ln L_cone`` the log of the display value of a channel equal to
+    ``L_cone``, and ``black`` is 1 where ``L_cone = 0``, else 0
+    (:func:`tone_map`).
+    """
     R_lum = luminance_response(
         params, L_rod, L_cone, obs.sigma_rod, obs.sigma_cone, obs.B_rod, obs.B_cone
     )
-    ln_L_d = display_log_luminance(params, obs.scale * R_lum + obs.offset)
-    e = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n) / display_slope(params)
-    white_d = params.white_factor * params.display_adaptation
-    black = (L_cone <= 0).astype(rgb.dtype)
-    s = ln_L_d - jnp.log(white_d) - e * jnp.log(L_cone + black)
-    rgb = rgb + black[..., None]
-    lit = rgb > 0
-    out = jnp.exp(e[..., None] * jnp.log(jnp.where(lit, rgb, 1.0)) + s[..., None])
+    d = obs.display
+    ln_L_d = inverse_display(d, obs.scale * R_lum + obs.offset, params.n)
+    e = response_slope(L_cone, obs.sigma_cone, obs.B_cone, params.n) / d.slope
+    black = (L_cone <= 0).astype(L_cone.dtype)
+    return e, ln_L_d - d.log_white - e * jnp.log(L_cone + black), black
+
+
+def display_value(e, s, black, c):
+    """Display value ``min(exp(e ln c + s), 1)`` of a channel ``c`` (cd/m2),
+    0 where ``c = 0``; a black pixel's channels enter as 1 (neutral)."""
+    c = c + black
+    lit = c > 0
+    out = jnp.exp(e * jnp.log(jnp.where(lit, c, 1.0)) + s)
     return jnp.minimum(jnp.where(lit, out, 0.0), 1.0)
 
 
@@ -532,15 +595,25 @@ def _probe(x, gaze):
     return x[row, col]
 
 
-def _display(params, G_rod, G_cone, state, frame, gaze):
-    """Show a frame with its goals to a viewer in ``state``.
+def _display(params, G_rod, G_cone, states, frames, gaze):
+    """Show frames ``(T, H, W, 3)`` with their goals to viewers in ``states``.
 
-    Returns the display frame and the frame's record at the gaze point
-    ``(G_rod, G_cone, state, observer, curve)``.
+    All arguments but ``params`` have a leading frame axis. Returns the
+    display frames and each frame's record at the gaze point ``(G_rod,
+    G_cone, state, observer, curve)``. The pixel map is one pass over the
+    frames on a GPU (:func:`jaxadapt.fused.map_pixels`).
     """
-    obs = observer(params, state)
-    seen = jax.tree.map(lambda x: _probe(x, gaze), (G_rod, G_cone, state, obs))
-    return tone_map(params, obs, frame), (*seen, curve(params, seen[-1]))
+    obs = jax.vmap(observer, (None, 0))(params, states)
+    seen = jax.vmap(lambda g, *x: jax.tree.map(lambda y: _probe(y, g), x))(
+        gaze, G_rod, G_cone, states, obs
+    )
+    out = fused.map_pixels(
+        lambda args, channels: tone_map_planes(*args, channels),
+        frames,
+        (params, obs),
+        default=lambda frames, args: jax.vmap(tone_map, (None, 0, 0))(*args, frames),
+    )
+    return out, (*seen, jax.vmap(curve, (None, 0))(params, seen[-1]))
 
 
 def step(params, state, frame, dt, *, gaze=None, key=None):
@@ -578,8 +651,9 @@ def _step(params, state, frame, dt, gaze):
     dt = check_dt(dt, 1)[0]
     gaze = _centre(frame) if gaze is None else gaze
     G_rod, G_cone = frame_goals(params, frame, gaze)
-    out, _ = _display(params, G_rod, G_cone, state, frame, gaze)
-    return advance(params, state, G_rod, G_cone, dt), out
+    one = jax.tree.map(lambda x: x[None], (G_rod, G_cone, state, frame, gaze))
+    out, _ = _display(params, *one)
+    return advance(params, state, G_rod, G_cone, dt), out[0]
 
 
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
@@ -638,8 +712,7 @@ def _run(params, frames, dt, gaze, state):
         state = static_state(params, G_rod[0], G_cone[0])
     state = jax.tree.map(lambda s: jnp.broadcast_to(s + guard, G_cone.shape[1:]), state)
     states, final_state = advance_sequence(params, state, G_rod, G_cone, dt)
-    display = jax.vmap(_display, (None, 0, 0, 0, 0, 0))
-    out, record = display(params, G_rod, G_cone, states, frames, gaze)
+    out, record = _display(params, G_rod, G_cone, states, frames, gaze)
     G_rod, G_cone, states, obs, curves = record
     diagnostics = Diagnostics(
         t=jnp.cumsum(dt) - dt,
