@@ -61,14 +61,14 @@ def map_pixels(planes_fn, frames, args, *, default, interpret=False):
     return jax.lax.platform_dependent(frames, args, cuda=kernel, default=default)
 
 
-def _leaf_layout(leaf, T, N):
+def _leaf_layout(leaf, T, H, W):
     """A leaf as a 2-D array indexed by frame, and whether it varies per pixel."""
     if leaf.ndim == 0:
         return leaf.reshape(1, 1), False
     if leaf.shape == (T,):
         return leaf.reshape(T, 1), False
-    if leaf.ndim == 3 and leaf.shape[0] == T and leaf.shape[1] * leaf.shape[2] == N:
-        return leaf.reshape(T, N), True
+    if leaf.shape == (T, H, W):
+        return leaf.reshape(T, H * W), True
     raise ValueError(f"args: expected leaves of shape (), ({T},) or ({T}, H, W), got {leaf.shape}")
 
 
@@ -76,7 +76,7 @@ def _pallas_map(planes_fn, frames, args, interpret):
     T, H, W, C = frames.shape
     N = H * W
     leaves, treedef = jax.tree.flatten(args)
-    layouts = [_leaf_layout(jnp.asarray(leaf), T, N) for leaf in leaves]
+    layouts = [_leaf_layout(jnp.asarray(leaf), T, H, W) for leaf in leaves]
     arrays, per_pixel = [a for a, _ in layouts], [p for _, p in layouts]
     wide = jnp.dtype(frames.dtype).itemsize > 4
 
