@@ -4,12 +4,13 @@ import platform
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from jaxadapt import runtime
 
-# Two calls of the operator on a batch (output 50 MB, and its temporaries):
-# prints the page faults of the second call.
+# Five calls of the operator on a batch (output 50 MB, and its temporaries):
+# prints the page faults of each call after the first.
 PROGRAM = """
 import resource, sys
 from jaxadapt import runtime
@@ -18,19 +19,21 @@ if sys.argv[1] == "retain":
 import jax, jax.numpy as jnp
 from jaxadapt.operators import pattanaik2000
 frames = jnp.full((8, 540, 960, 3), 100.0)
-for call in range(2):
+for call in range(5):
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     out = jax.block_until_ready(pattanaik2000.run(pattanaik2000.Params(), frames, 1 / 30))
     del out
-print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+    if call:
+        print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 """
 
 
 def _faults(mode):
+    """Page faults of each repeated call, in a fresh process."""
     done = subprocess.run(
         [sys.executable, "-c", PROGRAM, mode], capture_output=True, text=True, check=True
     )
-    return int(done.stdout.split()[-1])
+    return [int(line) for line in done.stdout.split()]
 
 
 @pytest.mark.skipif(
@@ -38,10 +41,14 @@ def _faults(mode):
 )
 def test_retained_memory_spares_the_page_faults_of_a_repeated_call():
     # The output alone is 12,150 pages of 4 KB: the default process maps them
-    # afresh at every call; with the freed memory retained the second call
-    # reuses the first call's pages.
-    assert _faults("default") > 12_000
-    assert _faults("retain") < 1_000
+    # afresh at every call; with the freed memory retained a repeated call
+    # reuses the last call's pages. Not every time: XLA's CPU thread pool
+    # runs independent work in an order that varies with the machine's load,
+    # and now and then a temporary takes part of the freed block first, so
+    # that the output needs new pages (1 process in 12, on a 2-core machine
+    # with two other busy processes). Hence the median of four calls.
+    assert min(_faults("default")) > 12_000
+    assert np.median(_faults("retain")) < 1_000
 
 
 def test_retain_freed_memory_reports_what_it_did(monkeypatch):
