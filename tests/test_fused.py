@@ -39,8 +39,11 @@ def _fused(frames, args):
     return fused.map_pixels(planes, frames, args, default=_tone_map, interpret=True)
 
 
-@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
-@pytest.mark.parametrize("background", ["global", "gaussian"])
+# Both dtypes, and both kinds of argument: per frame (a global background)
+# and per pixel (a local one).
+@pytest.mark.parametrize(
+    ("dtype", "background"), [(jnp.float32, "global"), (jnp.float64, "gaussian")]
+)
 def test_kernel_equals_the_map_it_fuses(dtype, background):
     # 3 x 23 x 29 pixels: the last block of each frame is partly outside it.
     params, frames = op.as_dtype((op.Params(background=background), _frames(3, 23, 29)), dtype)
