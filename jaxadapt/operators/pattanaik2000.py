@@ -306,10 +306,11 @@ def display_slope(params):
 
 def display(params):
     """The display observer's constants (:class:`Display`)."""
-    sigma_r, sigma_c, B_rod, B_cone = _display_observer(params)
-    white, _ = display_references(params)
-    log_white = jnp.log(params.white_factor * params.display_adaptation)
-    return Display(sigma_r, sigma_c, B_rod, B_cone, white, display_slope(params), log_white)
+    A = params.display_adaptation
+    receptors = _display_observer(params)
+    white, _ = references(params, *receptors, A, A)
+    log_white = jnp.log(params.white_factor * A)
+    return Display(*receptors, white, display_slope(params), log_white)
 
 
 def display_log_luminance(params, R):
