@@ -228,6 +228,10 @@ def test_nan_measurements_are_masked_and_said(course):
         assert float(f.estimate[name][3]) == pytest.approx(float(getattr(TRUTH, name)), rel=1e-6)
     for leaf in jax.tree.leaves(f):
         assert not np.any(np.isnan(np.asarray(leaf)))
+    # The prediction (the solver's last evaluation) is the model at the
+    # estimate, at the left-out measurements too.
+    at_estimate = log_threshold(jax.tree.map(lambda x: x[3], f.params), ARGS)
+    np.testing.assert_allclose(f.prediction[3], at_estimate, rtol=1e-12)
     # Weight 0 on arbitrary values is the same fit, and the other rows of the
     # batch do not change.
     weights = np.ones_like(data)
