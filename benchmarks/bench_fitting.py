@@ -27,20 +27,26 @@ factors, 20 %) and Gaussian noise of 0.05 log units.
   precision, compared with the float64 estimates in standard errors.
 
 Compilation is excluded (each compiled function is called once first; that
-first call's time, compilation included, is recorded too), JAX results are
-``block_until_ready``-ed and the median of the repeats is kept. The seconds
-are wall time on a machine that may be shared: the record keeps the load
-average before and after.
-The SciPy loops fit the first ``--peer`` (all 1,000 by default) and
-``--eager-peer`` (20) observers once; a subset scales linearly, recorded as
-such. The estimates are compared where both fits converged. Both sides stop
-by MINPACK's ``ftol = 1e-8`` test (jaxadapt's LevenbergMarquardt adds it,
-and MINPACK's ``xtol`` test, to optimistix's own tests).
+first call's time, compilation included, is recorded too) and JAX results
+are ``block_until_ready``-ed. The seconds are wall time on a machine that
+may be shared, whose speed drifts by 10 to 30 % from minute to minute: so
+the two sides are timed in turns. The SciPy loop fits the first ``--peer``
+observers (all 1,000 by default) in ``--pairs`` (10) consecutive groups,
+and after each group both jaxadapt calls (float64, float32) are timed once:
+each pair (a group, the calls after it) gives a speed-up measured within
+the same few seconds. The record keeps the median of the jaxadapt times
+(the speed-up is the SciPy total over it), the median and range of the
+speed-ups of the pairs, and the load average before and after. The second
+SciPy loop fits the first ``--eager-peer`` (20) observers once. A subset
+scales linearly, recorded as such. The estimates are compared where both
+fits converged. Both sides stop by MINPACK's ``ftol = 1e-8`` test
+(jaxadapt's LevenbergMarquardt adds it, and MINPACK's ``xtol`` test, to
+optimistix's own tests).
 
 Usage::
 
     python benchmarks/bench_fitting.py [--observers 1000] [--peer 1000]
-                                       [--eager-peer 20] [--repeats 3]
+                                       [--eager-peer 20] [--pairs 10]
 
 Writes ``benchmarks/results/fitting.json``.
 """
@@ -57,7 +63,7 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
-from common import machine, median_seconds, write_result  # noqa: E402
+from common import machine, write_result  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
@@ -106,13 +112,18 @@ def simulate(observers, args, seed=0):
     return np.exp(truth), data
 
 
-def scipy_loop(data, args, jit=True):
+def scipy_loop(data, args, jit=True, groups=1, between=None):
     """Fit each observer with MINPACK's LM and finite-difference Jacobians.
 
     ``jit``: the whole model (parameters to thresholds) compiled as one
     function, the fastest way to give SciPy the model; otherwise the model
     as written, called eagerly (``pattanaik2000.run`` compiles itself, the
     glue around it runs op by op), as a SciPy user might first wrap it.
+    The rows are fitted in ``groups`` consecutive groups, each timed on its
+    own, with ``between()`` called after each, outside the timing.
+
+    Returns the estimates, success flags and final costs (one per row),
+    the seconds of each group and the number of model evaluations.
     """
 
     def model(v):
@@ -127,14 +138,26 @@ def scipy_loop(data, args, jit=True):
         evaluations[0] += 1
         return np.asarray(model(jnp.asarray(v))) - row
 
+    seconds = []
+    for rows in np.array_split(data, groups):
+        start = time.perf_counter()
+        for row in rows:
+            result = least_squares(residuals, x0, jac="2-point", method="lm", args=(row,))
+            estimates.append(np.exp(result.x))
+            ok.append(result.success)
+            costs.append(result.cost)
+        seconds.append(time.perf_counter() - start)
+        if between is not None:
+            between()
+    return np.array(estimates), np.array(ok), np.array(costs), np.array(seconds), evaluations[0]
+
+
+def timed(fn, times):
+    """``fn()``, its wall time appended to ``times``."""
     start = time.perf_counter()
-    for row in data:
-        result = least_squares(residuals, x0, jac="2-point", method="lm", args=(row,))
-        estimates.append(np.exp(result.x))
-        ok.append(result.success)
-        costs.append(result.cost)
-    seconds = time.perf_counter() - start
-    return np.array(estimates), np.array(ok), np.array(costs), seconds, evaluations[0]
+    out = fn()
+    times.append(time.perf_counter() - start)
+    return out
 
 
 def main():
@@ -144,7 +167,9 @@ def main():
     parser.add_argument(
         "--eager-peer", type=int, default=20, help="observers fitted by SciPy on the eager model"
     )
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--pairs", type=int, default=10, help="SciPy groups, each followed by a timed fit"
+    )
     parser.add_argument("--label", default=None, help="machine label in the record")
     args = parser.parse_args()
 
@@ -162,7 +187,6 @@ def main():
     t = time.perf_counter()
     fits = run()
     first_s = time.perf_counter() - t
-    jax_s = median_seconds(run, repeats=args.repeats, warmup=0)
     ours = np.stack([np.asarray(fits.estimate[n]) for n in NAMES], -1)
     converged = np.asarray(fits.converged)
 
@@ -177,16 +201,34 @@ def main():
             )
 
         fits32 = run32()
-        f32_s = median_seconds(run32, repeats=args.repeats, warmup=0)
         ours32 = np.stack([np.asarray(fits32.estimate[n], float) for n in NAMES], -1)
         se64 = np.stack([np.asarray(fits.se[n]) for n in NAMES], -1)
         f32_vs_f64 = np.abs(ours32 - ours) / se64
 
+    def run32_as_float32():
+        with jax.enable_x64(False):
+            return run32()
+
+    jax_times, f32_times = [], []
     peer = min(args.peer, args.observers)
-    theirs, peer_ok, cost, peer_s, evaluations = scipy_loop(np.asarray(data[:peer]), model_args)
+    theirs, peer_ok, cost, groups_s, evaluations = scipy_loop(
+        np.asarray(data[:peer]),
+        model_args,
+        groups=min(args.pairs, peer),
+        between=lambda: (timed(run, jax_times), timed(run32_as_float32, f32_times)),
+    )
+    peer_s = float(groups_s.sum())
     peer_per_fit = peer_s / peer
+    jax_s, f32_s = float(np.median(jax_times)), float(np.median(f32_times))
+    group_sizes = np.array([len(g) for g in np.array_split(np.arange(peer), groups_s.size)])
+    # Each pair's SciPy time for all observers over the jaxadapt call after it.
+    pair_speedups = groups_s / group_sizes * args.observers / np.array(jax_times)
+    pair_speedups32 = groups_s / group_sizes * args.observers / np.array(f32_times)
     eager = min(args.eager_peer, args.observers)
-    *_, eager_s, eager_evaluations = scipy_loop(np.asarray(data[:eager]), model_args, jit=False)
+    *_, eager_groups_s, eager_evaluations = scipy_loop(
+        np.asarray(data[:eager]), model_args, jit=False
+    )
+    eager_s = float(eager_groups_s.sum())
     eager_per_fit = eager_s / eager
     both = converged[:peer] & peer_ok
     rel = np.abs(ours[:peer] / theirs - 1)[both]
@@ -201,9 +243,10 @@ def main():
         "benchmark": "least-squares fits of t0 and tau (rods, cones) to 90 log thresholds "
         "from pattanaik2000.run, one per simulated observer",
         "observers": args.observers,
-        "repeats": args.repeats,
+        "pairs": len(jax_times),
         "jaxadapt": {
             "seconds": jax_s,
+            "seconds_each_pair": jax_times,
             "first_call_seconds": first_s,
             "fits_per_second": args.observers / jax_s,
             "converged_fraction": float(converged.mean()),
@@ -218,6 +261,7 @@ def main():
         },
         "jaxadapt_float32": {
             "seconds": f32_s,
+            "seconds_each_pair": f32_times,
             "fits_per_second": args.observers / f32_s,
             "converged_fraction": float(np.mean(np.asarray(fits32.converged))),
             "median_steps": float(np.median(np.asarray(fits32.steps))),
@@ -228,6 +272,7 @@ def main():
             "version": scipy.__version__,
             "observers": peer,
             "seconds": peer_s,
+            "seconds_each_group": groups_s.tolist(),
             "seconds_per_fit": peer_per_fit,
             "seconds_for_all_observers": peer_per_fit * args.observers,
             "scaled_from_subset": peer < args.observers,
@@ -250,6 +295,18 @@ def main():
         },
         "speedup": peer_per_fit * args.observers / jax_s,
         "speedup_float32": peer_per_fit * args.observers / f32_s,
+        "speedup_of_the_pairs": {
+            "float64": {
+                "median": float(np.median(pair_speedups)),
+                "min": float(np.min(pair_speedups)),
+                "max": float(np.max(pair_speedups)),
+            },
+            "float32": {
+                "median": float(np.median(pair_speedups32)),
+                "min": float(np.min(pair_speedups32)),
+                "max": float(np.max(pair_speedups32)),
+            },
+        },
         "speedup_vs_eager_model": eager_per_fit * args.observers / jax_s,
         "agreement": {
             "compared_observers": int(both.sum()),
@@ -278,7 +335,9 @@ def main():
     print(
         f"jaxadapt: {args.observers} fits in {jax_s:.2f} s ({args.observers / jax_s:,.0f} fits/s, "
         f"first call {first_s:.1f} s); scipy: {peer_per_fit * 1e3:.1f} ms a fit "
-        f"({peer} fitted); speed-up {record['speedup']:.1f}x; estimates agree to "
+        f"({peer} fitted); speed-up {record['speedup']:.1f}x (pairs: median "
+        f"{np.median(pair_speedups):.1f}x, {np.min(pair_speedups):.1f} to "
+        f"{np.max(pair_speedups):.1f}x); estimates agree to "
         f"{record['agreement']['max_relative_difference']:.1e} relative (max), "
         f"{record['agreement']['max_difference_in_standard_errors']:.1e} standard errors"
     )
