@@ -270,6 +270,14 @@ def test_bad_dt_is_named():
         op.run(P, frames, jnp.ones(4))
     with pytest.raises(eqx.EquinoxRuntimeError, match="dt: expected positive"):
         op.run(P, frames, jnp.array([0.1, 0.0, 0.1]))
+    # One conditional checks both: bad frames are named first.
+    with pytest.raises(eqx.EquinoxRuntimeError, match="frames: expected finite"):
+        op.run(P, frames.at[0, 0, 0, 0].set(jnp.nan), jnp.array([0.1, 0.0, 0.1]))
+    state = op.init(P, frames[0])
+    with pytest.raises(eqx.EquinoxRuntimeError, match="dt: expected positive"):
+        op.step(P, state, frames[0], -0.1)
+    with pytest.raises(ValueError, match=r"dt: expected a scalar or shape \(1,\)"):
+        op.step(P, state, frames[0], jnp.ones(2))
 
 
 def test_unknown_goal_is_named():

@@ -85,7 +85,7 @@ import numpy as np
 
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
-from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
+from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, foveal_log_average
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
@@ -830,14 +830,13 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze):
-    guard = check_frames(frame, 3, "frame")
+    guard, dt = check_frames_and_dt(frame, dt, 3, "frame")
     if state.B.shape != frame.shape:
         raise ValueError(
             f"frame: expected the shape of the state's maps {state.B.shape}, got {frame.shape}"
         )
-    params, state, dt = as_dtype((params, state, dt), frame.dtype)
+    params, state, dt = as_dtype((params, state, dt[0]), frame.dtype)
     state = state._replace(A=state.A + guard)
-    dt = check_dt(dt, 1)[0]
     return _frame(params, state, frame, dt, gaze)
 
 
@@ -889,10 +888,8 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
 
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, key, state):
-    guard = check_frames(frames, 4)
+    guard, dt = check_frames_and_dt(frames, dt, 4)
     params, state, dt = as_dtype((params, state, dt), frames.dtype)
-    T = frames.shape[0]
-    dt = check_dt(dt, T)
     if state is None:
         state = _initial_state(params, frames[0], gaze[0], key)
     state = state._replace(A=state.A + guard)

@@ -46,7 +46,7 @@ from jaxadapt.color import (
     scotopic_luminance,
 )
 from jaxadapt.operators import goal as goals
-from jaxadapt.operators.checks import as_dtype, check_dt, check_frames
+from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
     forward_difference_slope,
@@ -646,10 +646,9 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze):
-    guard = check_frames(frame, 3, "frame")
-    params, state, dt, gaze = as_dtype((params, state, dt, gaze), frame.dtype)
+    guard, dt = check_frames_and_dt(frame, dt, 3, "frame")
+    params, state, dt, gaze = as_dtype((params, state, dt[0], gaze), frame.dtype)
     state = jax.tree.map(lambda s: s + guard, state)
-    dt = check_dt(dt, 1)[0]
     gaze = _centre(frame) if gaze is None else gaze
     G_rod, G_cone = frame_goals(params, frame, gaze)
     one = jax.tree.map(lambda x: x[None], (G_rod, G_cone, state, frame, gaze))
@@ -700,10 +699,9 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
 
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, state):
-    guard = check_frames(frames, 4)
+    guard, dt = check_frames_and_dt(frames, dt, 4)
     params, state, dt, gaze = as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
-    dt = check_dt(dt, T)
     if gaze is None:
         gaze = jnp.broadcast_to(_centre(frames), (T, 2))
     elif gaze.shape != (T, 2):
