@@ -82,8 +82,9 @@ Uncertainty
 Standard errors come from the information matrix of ``u`` at the estimate:
 the Gauss-Newton ``J' W J`` for least squares (scaled by the residual
 variance ``2 loss / (m - k)`` unless ``absolute_sigma``, as SciPy's
-``curve_fit`` does; ``J`` is the solver's last Jacobian, at the estimate,
-for optimistix's Gauss-Newton family, and is computed there otherwise), the
+``curve_fit`` does; ``J`` and the returned prediction are the solver's
+last Jacobian and model evaluation, at the estimate, for optimistix's
+Gauss-Newton family, and are computed there otherwise), the
 Hessian of the negative log-likelihood otherwise; then the delta method
 back to natural units, ``cov_p = D cov_u D`` with ``D`` the derivative of
 the map above. ``cov`` is over the fitted elements in the
