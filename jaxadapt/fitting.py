@@ -145,7 +145,8 @@ LANES = 64
 #: step independent of the others (see "Batches" in the module notes). On a
 #: 2-core CPU two groups of 32 lanes fitted the 1,000 datasets of
 #: ``benchmarks/bench_fitting.py`` in 0.87 to 0.89 of the time one group of 64
-#: took (four groups: 0.93), calls alternated in one process.
+#: took (four groups: 0.93), calls alternated in one process. CPU only: a GPU
+#: runs a computation's kernels one after another, and takes one group.
 LANE_GROUPS = 2
 
 
@@ -882,7 +883,8 @@ def _round(problem, carry, live, data, weights, waiting, final):
         carry = _where(take, _rows(start, row), carry)
         live, taken = live | take, taken + jnp.sum(take, dtype=taken.dtype)
         here = _rows(obs, row)
-        stepped = _in_groups(jax.vmap(step), LANE_GROUPS, carry, here)
+        groups = LANE_GROUPS if jax.default_backend() == "cpu" else 1
+        stepped = _in_groups(jax.vmap(step), groups, carry, here)
         carry = _where(live & running(carry), stepped, carry)
         stop = live & ~running(carry)
         out = jax.tree.map(
