@@ -96,13 +96,49 @@ def separable_filter(image, taps):
     image), so that a constant image stays constant. Each pass is a weighted
     sum of shifted slices, which XLA fuses into one loop: on the CPU it is
     tens of times faster than a convolution op for these one-channel images.
+
+    XLA's CPU and GPU backends want the two passes written differently, and
+    ``jax.lax.platform_dependent`` picks the form. On the CPU, one axis at a
+    time, each padded with ``jnp.pad`` just before its pass: from the image
+    padded on both axes at once (one gather), XLA fuses the two passes into
+    one loop that recomputes the vertical sums for every horizontal tap,
+    ``(2r + 1)^2`` products a pixel, for kernels of up to 15 taps. That took
+    275 ms for a 15-tap blur of a 1920x1080 RGB frame, against 36 ms per
+    axis (float32, 2 cores; 141 against 44 ms at 11 taps, 91 against 41 at
+    23, where XLA splits the passes itself). On a GPU that fused loop is
+    the fast form (the per-axis one cost the 2015 operator a third of its
+    frame rate on an H100), so other platforms keep it.
     """
     taps = np.asarray(taps)
+    out = jax.lax.platform_dependent(
+        image,
+        cpu=lambda image: _filter_per_axis(image, taps),
+        default=lambda image: _filter_both_axes(image, taps),
+    )
+    return out.astype(image.dtype)
+
+
+def _filter_per_axis(image, taps):
+    """:func:`separable_filter` one axis at a time, each padded just before its pass (CPU)."""
     r = (taps.shape[0] - 1) // 2
-    H, W = image.shape[-2:]
-    padded = _reflect_pad(image, r)
-    rows = sum(w * padded[..., i : i + H, :] for i, w in enumerate(taps))
-    return sum(w * rows[..., :, i : i + W] for i, w in enumerate(taps)).astype(image.dtype)
+    for axis in (-2, -1):
+        widths = [(0, 0)] * image.ndim
+        widths[axis] = (r, r)
+        image = _shifted_sum(jnp.pad(image, widths, mode="reflect"), taps, axis)
+    return image
+
+
+def _filter_both_axes(image, taps):
+    """:func:`separable_filter` from the image padded on both axes at once (GPU)."""
+    padded = _reflect_pad(image, (taps.shape[0] - 1) // 2)
+    return _shifted_sum(_shifted_sum(padded, taps, -2), taps, -1)
+
+
+def _shifted_sum(padded, taps, axis):
+    """``sum_i taps[i] padded[i : i + n]`` along ``axis``, ``n`` the length
+    before padding: one pass of a filter over a mirror-extended axis."""
+    n = padded.shape[axis] - (taps.shape[0] - 1)
+    return sum(w * jax.lax.slice_in_dim(padded, i, i + n, axis=axis) for i, w in enumerate(taps))
 
 
 def gaussian_blur(image, sigma, truncate=4.0):

@@ -77,6 +77,29 @@ def test_gaussian_blur_matches_scipy_and_keeps_constants():
         spatial.gaussian_kernel(0.0)
 
 
+def test_both_forms_of_the_separable_filter_agree():
+    # The CPU runs the per-axis form, other platforms the both-axes form
+    # (separable_filter's notes): the same filter, kernels longer than the
+    # image and one-pixel axes included.
+    rng = np.random.default_rng(3)
+    for shape, sigma in (((3, 20, 30), 1.5), ((2, 5, 7), 10.0), ((1, 9), 0.75), ((4, 1, 6), 2.0)):
+        x = jnp.asarray(rng.uniform(size=shape))
+        taps = spatial.gaussian_kernel(sigma)
+        np.testing.assert_allclose(
+            spatial._filter_per_axis(x, taps), spatial._filter_both_axes(x, taps), rtol=1e-13
+        )
+
+
+def test_both_forms_of_the_colour_transform_are_the_matrix_product():
+    # The CPU computes the rows in turn, other platforms at once (transform's notes).
+    x = np.random.default_rng(5).lognormal(size=(2, 5, 4, 3))
+    M = np.asarray(color.RGB_TO_LMS)
+    for form in (color._rows_in_turn, color._rows_at_once):
+        np.testing.assert_allclose(form(jnp.asarray(x), jnp.asarray(M)), x @ M.T, rtol=1e-13)
+    np.testing.assert_allclose(color.transform(jnp.asarray(x), M), x @ M.T, rtol=1e-13)
+    np.testing.assert_allclose(color.transform(jnp.asarray(x), M[1]), x @ M[1], rtol=1e-13)
+
+
 def test_plane_sum_is_the_sum_over_the_image_axes():
     # On the CPU plane_sum is two products with vectors of ones (module notes).
     x = np.random.default_rng(1).lognormal(size=(3, 2, 17, 23))

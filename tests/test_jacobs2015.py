@@ -156,6 +156,22 @@ def test_bleaching_off_leaves_darkness_black():
     assert float(out[3:].max()) > 0.1
 
 
+def test_retinal_shift_moves_the_maps_and_fills_what_it_uncovers():
+    # NumPy reference: out[y, x] = maps[y - dy, x - dx] where that lies in
+    # the frame, else fill[y, x]; shifts past the frame's size fill it all.
+    rng = np.random.default_rng(4)
+    maps, fill = rng.uniform(size=(2, 7, 11, 3))
+    shift_map = jax.jit(op.retinal_shift)
+    for dx, dy in [(0, 0), (3, -2), (-5, 4), (11, 0), (-20, 30)]:
+        expected = fill.copy()
+        for y in range(7):
+            for x in range(11):
+                if 0 <= y - dy < 7 and 0 <= x - dx < 11:
+                    expected[y, x] = maps[y - dy, x - dx]
+        out = shift_map(jnp.asarray(maps), jnp.array([dx, dy]), jnp.asarray(fill))
+        np.testing.assert_array_equal(out, expected)
+
+
 def test_afterimages_move_with_the_gaze():
     # A flash at the centre, then darkness while the gaze moves 6 pixels
     # right and 3 down: the afterimage moves with it (retina-locked).
