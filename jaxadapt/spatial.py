@@ -1,5 +1,7 @@
 """Spatial weights and filters on images ``(..., H, W)``."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -109,6 +111,14 @@ def separable_filter(image, taps):
     the fast form (the per-axis one cost the 2015 operator a third of its
     frame rate on an H100), so other platforms keep it.
     """
+    return _separable_filter(image, tuple(float(w) for w in np.asarray(taps)))
+
+
+@functools.partial(jax.jit, static_argnames="taps")
+def _separable_filter(image, taps):
+    """:func:`separable_filter` compiled as one function per image shape and
+    ``taps`` (a tuple, static): called eagerly, each tap's slice and product
+    would otherwise be dispatched, and compiled, one op at a time."""
     taps = np.asarray(taps)
     out = jax.lax.platform_dependent(
         image,
