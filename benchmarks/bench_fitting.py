@@ -13,9 +13,8 @@ factors, 20 %) and Gaussian noise of 0.05 log units.
   damping, scaled to ``J' J`` at the start) with exact forward-mode
   Jacobians through ``run`` (the model linearised once a step, each
   constant's tangent pushed through that linearisation alone), in a
-  queue of ``fitting.LANES`` (64) vmapped solver lanes, stepping in
-  ``fitting.LANE_GROUPS`` (2) groups side by side: a lane whose fit stops
-  takes the next observer, so that no fit waits for the slowest.
+  queue of ``fitting.LANES`` (64) vmapped solver lanes: a lane whose fit
+  stops takes the next observer, so that no fit waits for the slowest.
 * peer: a loop of ``scipy.optimize.least_squares`` (``method="lm"``, MINPACK,
   Jacobians by two-point finite differences, its default tolerances) on the
   same residuals of the same model, evaluated by the same jitted JAX function

@@ -66,16 +66,17 @@ the next dataset at once. The host hands the queue over in rounds of
 (iterate, step count, Levenberg-Marquardt's damping and last Jacobian)
 stays as it is, so that every fit takes the steps, and gives the numbers,
 of an uninterrupted solve (to rounding, which XLA may give differently for
-another batch width). The lanes take their steps in :data:`LANE_GROUPS`
-groups, each group's step a computation of its own: one vmapped step is a
-long chain of small operations, each waiting for the last, during which
-XLA's CPU runtime leaves a core idle (a profile of the queue showed its two
-threads busy 55 % of the time); the steps of independent groups run side by
-side and fill those waits. The compiled functions see twice :data:`LANES`
+another batch width). The compiled functions see twice :data:`LANES`
 datasets whatever the batch: a batch of any size compiles them once. Under
 a JAX transformation (:func:`fit` called inside ``jit`` or ``vmap``, any of
 ``data``, ``weights``, ``params``, ``args`` traced) there is no host to keep
 the queue, and the batch is one vmapped solve whatever its size.
+
+The lanes take each step as one vmapped computation. (Stepping them in two
+independent groups, which XLA's CPU runtime runs side by side, deadlocked
+that runtime in jaxlib 0.10.2 once a group held about 90 lanes of this
+benchmark's 90 residuals, or 32 lanes of 270, and it was no faster on a
+2-core VM: 0.384 s for the 1,000 fits, against 0.379 s in one group.)
 
 Uncertainty
 -----------
@@ -141,13 +142,6 @@ MAX_STEPS = 256
 #: wider vmaps of the model leave the cache, narrower ones pay XLA's fixed
 #: cost per operation more often, and the last fits of a queue leave lanes idle.
 LANES = 64
-#: Groups the queue's lanes take their solver steps in, each group one vmapped
-#: step independent of the others (see "Batches" in the module notes). On a
-#: 2-core CPU two groups of 32 lanes fitted the 1,000 datasets of
-#: ``benchmarks/bench_fitting.py`` in 0.87 to 0.89 of the time one group of 64
-#: took (four groups: 0.93), calls alternated in one process. CPU only: a GPU
-#: runs a computation's kernels one after another, and takes one group.
-LANE_GROUPS = 2
 
 
 class Fit(eqx.Module):
@@ -821,22 +815,6 @@ def _lanes(problem, data, weights):
     return obs, lane, start, static
 
 
-def _in_groups(fn, groups, *trees):
-    """``fn(*trees)`` (``fn`` vmapped over the leading axis), computed as
-    ``groups`` independent calls on consecutive parts of that axis and
-    joined: the same values, as separate computations that XLA's CPU
-    runtime runs concurrently. Each part passes an optimisation barrier:
-    without it XLA merges the parts' operations back into one (one group
-    of 64 lanes and two such groups of 32 took the same time)."""
-    n = jax.tree.leaves(trees)[0].shape[0]
-    ends = [n * g // groups for g in range(groups + 1)]
-    parts = [
-        fn(*jax.lax.optimization_barrier(_rows(trees, slice(a, b))))
-        for a, b in zip(ends[:-1], ends[1:], strict=True)
-    ]
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *parts)
-
-
 def _rows(tree, index):
     """The rows ``index`` (leading axis) of every leaf."""
     return jax.tree.map(lambda x: x[index], tree)
@@ -883,8 +861,7 @@ def _round(problem, carry, live, data, weights, waiting, final):
         carry = _where(take, _rows(start, row), carry)
         live, taken = live | take, taken + jnp.sum(take, dtype=taken.dtype)
         here = _rows(obs, row)
-        groups = LANE_GROUPS if jax.default_backend() == "cpu" else 1
-        stepped = _in_groups(jax.vmap(step), groups, carry, here)
+        stepped = jax.vmap(step)(carry, here)
         carry = _where(live & running(carry), stepped, carry)
         stop = live & ~running(carry)
         out = jax.tree.map(

@@ -484,20 +484,6 @@ def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeyp
     np.testing.assert_array_equal(g.steps, [16, 7, 7])
 
 
-def test_lane_groups_give_the_values_of_one_vmap():
-    # Seven rows in two and in three groups (uneven parts), pytrees in and out.
-    x = {"a": jnp.arange(7.0), "b": jnp.arange(14.0).reshape(7, 2)}
-
-    def step(tree, k):
-        return {"s": jnp.sin(tree["a"]) * k, "t": tree["b"].sum() + k}
-
-    whole = jax.vmap(step)(x, jnp.arange(7))
-    for groups in (2, 3):
-        parts = fitting._in_groups(jax.vmap(step), groups, x, jnp.arange(7))
-        for key in whole:
-            np.testing.assert_array_equal(parts[key], whole[key])
-
-
 def test_a_queue_traces_its_round_once(uneven, monkeypatch):
     # The carry that a round hands to the next (the solver's whole state,
     # the damping's included) keeps its dtypes and weak types, so that the
