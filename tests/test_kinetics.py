@@ -99,7 +99,7 @@ def test_exact_steps_converge_to_the_continuous_solution():
 
 @pytest.mark.parametrize("dtype, rtol", [(jnp.float64, 1e-12), (jnp.float32, 1e-5)])
 def test_relaxation_sequence_equals_a_loop_of_steps(dtype, rtol):
-    """The associative scan gives the states of T dependent exact steps,
+    """The sequence gives the states of T dependent exact steps,
     for goals over 12 decades (bright steps included) and per-pixel maps:
     to rounding in float64, and in float32 to the float64 loop."""
     rng = np.random.default_rng(3)
@@ -117,6 +117,22 @@ def test_relaxation_sequence_equals_a_loop_of_steps(dtype, rtol):
     assert states.shape == (38, 2, 3) and states.dtype == dtype
     np.testing.assert_allclose(states, loop, rtol=rtol, atol=10 * float(jnp.finfo(dtype).tiny))
     assert bool(jnp.all((states >= 0) & (states <= 1)))
+
+
+def test_both_forms_of_the_prefix_states_agree():
+    # The CPU runs the steps in turn, other platforms the associative scan
+    # (_prefix_states' notes): the same states, for one step and for many,
+    # scalars and maps per step.
+    rng = np.random.default_rng(5)
+    for shape in ((1,), (1, 2, 3), (37,), (64, 4, 5)):
+        a = jnp.asarray(rng.uniform(0.0, 1.0, shape))
+        b = jnp.asarray(rng.uniform(0.0, 2.0, shape))
+        y0 = jnp.asarray(rng.uniform(0.0, 1.0, shape[1:]))
+        in_turn, associative = (
+            jax.jit(f)(y0, a, b) for f in (k._prefix_states_in_turn, k._prefix_states_associative)
+        )
+        assert in_turn.shape == (shape[0] + 1, *shape[1:])
+        np.testing.assert_allclose(in_turn, associative, rtol=1e-13)
 
 
 def test_relaxation_sequence_derivatives_equal_those_of_a_loop_of_steps():

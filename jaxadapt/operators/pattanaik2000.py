@@ -12,9 +12,9 @@ scene evokes in the scene viewer (Fig. 1 and Fig. 4 of the paper)::
 The adaptation state is four scalars (``A_rod``, ``A_cone``, ``B_rod``,
 ``B_cone``). :func:`run` therefore finds the goals of every frame at once
 (one batched reduction), advances the state through the whole sequence by
-the associative form of the exact kinetics (no loop over frames), and only
-then maps the pixels of every frame in one vectorised pass; :func:`step`
-does the same one frame at a time.
+the exact kinetics (on a GPU by their associative form, with no loop over
+frames), and only then maps the pixels of every frame in one vectorised
+pass; :func:`step` does the same one frame at a time.
 
 Timing: frame ``k``, shown at ``t_k``, is seen with the state reached at
 ``t_k``; its goal is then held for its duration ``dt_k`` to give the state
@@ -525,9 +525,10 @@ def advance_sequence(params, state, G_rod, G_cone, dt):
     """States a sequence of frames is seen with, and the state after it.
 
     Frame ``k``'s goals ``G_rod[k]``, ``G_cone[k]`` (cd/m2) are held for
-    ``dt[k]`` s. All frames at once, by the associative form of the exact
-    steps (:func:`~jaxadapt.physiology.kinetics.relaxation_sequence`): equal
-    to a loop of :func:`advance` up to rounding.
+    ``dt[k]`` s. The exact steps over the whole sequence
+    (:func:`~jaxadapt.physiology.kinetics.relaxation_sequence`: on a GPU
+    all frames at once, by their associative form): equal to a loop of
+    :func:`advance` up to rounding.
 
     Returns
     -------

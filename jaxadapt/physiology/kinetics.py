@@ -80,9 +80,10 @@ def relaxation_sequence(y0, relaxation, dt):
     Step ``k`` is the affine map ``y -> a_k y + b_k`` of
     :func:`affine_step`.
     Affine maps compose associatively, ``(a2, b2) o (a1, b1) = (a2 a1, a2 b1
-    + b2)``, so every prefix of the sequence is found by
+    + b2)``, so on a GPU every prefix of the sequence is found by
     ``jax.lax.associative_scan`` in ``log2 T`` vectorised rounds instead of
     a loop of ``T`` dependent steps; the states are then ``A_k y0 + B_k``.
+    On the CPU the loop is the faster form (:func:`_prefix_states`).
     Equal to a loop of :func:`relaxation_step` up to rounding, and so are
     its derivatives (:func:`_affine_sequence`).
 
@@ -108,13 +109,43 @@ def relaxation_sequence(y0, relaxation, dt):
 
 def _prefix_states(y0, a, b):
     """``y0`` and the states after each map ``y -> a_k y + b_k`` (leading
-    axis ``k``), all at once by the associative scan of their compositions."""
+    axis ``k``).
+
+    XLA's CPU and GPU backends want this written differently, and
+    ``jax.lax.platform_dependent`` picks the form. On a GPU, all at once by
+    the associative scan of the maps' compositions: ``log2 T`` rounds of
+    vectorised work instead of ``T`` dependent steps, each of which would be
+    a kernel launch. On the CPU, the steps in turn (``lax.scan``): the
+    associative scan's interleaving of odd and even prefixes is a padding
+    along the time axis that XLA's CPU backend does not vectorise, and it
+    reads and writes every state several times. Measured on 2 cores
+    (float32): 81 against 11 ms for a 60-frame sequence of 480x270 maps,
+    1.63 against 0.45 s at 1920x1080.
+    """
+    return jax.lax.platform_dependent(
+        y0, a, b, cpu=_prefix_states_in_turn, default=_prefix_states_associative
+    )
+
+
+def _prefix_states_associative(y0, a, b):
+    """:func:`_prefix_states` by the associative scan of the compositions
+    ``(a2, b2) o (a1, b1) = (a2 a1, a2 b1 + b2)``."""
 
     def compose(first, then):
         return then[0] * first[0], then[0] * first[1] + then[1]
 
     A, B = jax.lax.associative_scan(compose, (a, b))
     return jnp.concatenate([y0[None], A * y0 + B])
+
+
+def _prefix_states_in_turn(y0, a, b):
+    """:func:`_prefix_states` by a loop of the steps ``y -> a_k y + b_k``."""
+
+    def step(y, ab):
+        y = ab[0] * y + ab[1]
+        return y, y
+
+    return jnp.concatenate([y0[None], jax.lax.scan(step, y0, (a, b))[1]])
 
 
 @jax.custom_jvp
