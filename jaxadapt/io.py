@@ -44,7 +44,13 @@ def read_hdr(path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    image = oiio.ImageInput.open(str(path))
+    # PFM stores its rows bottom to top. OpenImageIO turns them the right way
+    # up only when opened with a configuration (``pnm:pfmflip``, default 1);
+    # opened without one (as OpenImageIO 3.2 does) it returns them upside
+    # down, while its writer stores them as the format says.
+    config = oiio.ImageSpec()
+    config.attribute("pnm:pfmflip", 1)
+    image = oiio.ImageInput.open(str(path), config)
     if image is None:
         raise ValueError(f"{path}: cannot read as an image ({oiio.geterror().strip()})")
     try:

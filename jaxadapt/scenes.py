@@ -101,7 +101,7 @@ def colorchecker_image(width, height, white_luminance, surround=0.2):
 
 
 def title_step(
-    width=384, height=256, duration=1.5, frame_time=0.030, moonlight_goal=0.01, sunlight_goal=1000.0
+    width=384, height=256, duration=1.5, fps=1 / 0.030, moonlight_goal=0.01, sunlight_goal=1000.0
 ):
     """The moonlight-to-sunlight step of the paper's title page (§5).
 
@@ -116,12 +116,13 @@ def title_step(
         Frame size, pixels.
     duration : float
         Length of the sequence, s.
-    frame_time : float
-        Frame spacing ``T``, s (30 ms in the paper).
+    fps : float
+        Frames per second, ``1/T`` (the paper's frame spacing ``T`` is 30 ms).
     moonlight_goal, sunlight_goal : float
         Adaptation goals before and after the step, cd/m2.
     """
-    T = int(round(duration / frame_time))
+    frame_time = 1.0 / fps
+    T = int(round(duration * fps))
     times = np.arange(T) * frame_time
     chart = jnp.asarray(colorchecker_image(width, height, 1.0), dtype=jnp.float32)
     white = colorchecker_rgb()[3, 0] @ RGB709_TO_XYZ[1]
@@ -367,16 +368,24 @@ def recorded_gaze(times, points):
     """A gaze path through recorded samples, held from each sample to the next.
 
     Eye trackers report fixations; holding (rather than interpolating)
-    keeps saccades sharp and blinks (NaN samples) as they were recorded.
-    Before the first sample, the first one holds.
+    keeps saccades sharp. A blink (a sample that is not finite) holds the
+    fixation before it, as the 2015 operator does with a blink in its own
+    path, so that every operator, and every chunk of a long sequence, sees
+    the same fixation; a recording that starts with a blink stays NaN until
+    its first fixation (the operators then take the frame's centre). Before
+    the first sample, the first one holds.
 
     Examples
     --------
-    >>> path = recorded_gaze(np.array([0.0, 1.0]), np.array([[1.0, 2.0], [3.0, 4.0]]))
-    >>> path(np.array([0.5, 1.0, 9.0])).tolist()
-    [[1.0, 2.0], [3.0, 4.0], [3.0, 4.0]]
+    >>> points = np.array([[1.0, 2.0], [np.nan, np.nan], [5.0, 6.0]])  # a blink at 1 s
+    >>> path = recorded_gaze(np.array([0.0, 1.0, 2.0]), points)
+    >>> path(np.array([0.5, 1.0, 1.5, 9.0])).tolist()
+    [[1.0, 2.0], [1.0, 2.0], [1.0, 2.0], [5.0, 6.0]]
     """
     times, points = np.asarray(times), np.asarray(points, dtype=np.float64)
+    finite = np.all(np.isfinite(points), axis=-1)
+    last = np.maximum.accumulate(np.where(finite, np.arange(len(points)), -1))
+    points = np.where((last >= 0)[:, None], points[np.maximum(last, 0)], np.nan)
 
     def gaze(t):
         i = np.searchsorted(times, np.atleast_1d(t), side="right") - 1

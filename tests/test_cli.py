@@ -187,6 +187,31 @@ def test_jacobs2015_follows_a_recorded_gaze(tmp_path, capsys):
     assert {"B_L", "C_S", "A"} <= set(rows[0])
 
 
+def test_a_blink_in_the_gaze_holds_the_fixation_for_pattanaik2000(tmp_path, capsys):
+    # The foveal goal during a blink is the one at the fixation before it
+    # (the recorded path holds it), not NaN and not black frames after it.
+    gaze = tmp_path / "gaze.csv"
+    gaze.write_text("t,x,y\n0,5,4\n0.1,nan,nan\n0.2,25,12\n")
+    out = tmp_path / "out"
+    args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "0.3"]
+    args += ["--adaptation-goal", "foveal", "--format", "exr", "--chunk", "4"]
+    status, err = _run(capsys, *args, "--gaze", str(gaze), "--out", str(out))
+    assert status == 0, err
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    values = np.array([[float(v) for v in r.values()] for r in rows])
+    assert np.all(np.isfinite(values))
+    frames = [io.read_hdr(out / f"frame_{k:05d}.exr") for k in range(len(rows))]
+    assert min(float(f.max()) for f in frames) > 0.05
+    held = tmp_path / "held.csv"  # the same path with the fixation written out
+    held.write_text("t,x,y\n0,5,4\n0.1,5,4\n0.2,25,12\n")
+    status, err = _run(capsys, *args, "--gaze", str(held), "--out", str(tmp_path / "held"))
+    assert status == 0, err
+    for k in range(len(rows)):
+        np.testing.assert_array_equal(
+            frames[k], io.read_hdr(tmp_path / "held" / f"frame_{k:05d}.exr")
+        )
+
+
 def test_bad_gaze_file_is_named(tmp_path, capsys):
     gaze = tmp_path / "gaze.csv"
     gaze.write_text("t,x,y\n0,5\n")

@@ -76,6 +76,26 @@ def test_run_equals_a_loop_of_step(goal):
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
+def test_blinks_and_gaze_outside_the_frame_read_the_centre_and_the_edge():
+    # A NaN sample (a blink) reads the frame's centre and a point outside
+    # the frame its edge, in run as in step: finite output, never NaN.
+    params = op.Params(goal="foveal", pixels_per_degree=2.0)
+    frames = _sequence()
+    dt = jnp.full(6, 0.05)
+    centre, corner = [3.0, 2.0], [6.0, 0.0]
+    given = jnp.array([[1.0, 1.0], [np.nan, np.nan], [np.nan, 2.0], [60.0, -9.0], centre, corner])
+    meant = jnp.array([[1.0, 1.0], centre, centre, corner, centre, corner])
+    out, diag = op.run(params, frames, dt, gaze=given)
+    expected, expected_diag = op.run(params, frames, dt, gaze=meant)
+    assert bool(jnp.all(jnp.isfinite(out)))
+    np.testing.assert_allclose(out, expected, rtol=1e-12)
+    np.testing.assert_allclose(diag.G_cone, expected_diag.G_cone, rtol=1e-12)
+    state = op.init(params, frames[0], gaze=given[0])
+    for k in range(frames.shape[0]):
+        state, frame_out = op.step(params, state, frames[k], dt[k], gaze=given[k])
+        np.testing.assert_allclose(frame_out, out[k], rtol=1e-10, atol=1e-12)
+
+
 def test_steady_state_of_a_long_constant_scene_is_the_static_model():
     frames = jnp.full((40, 3, 3, 3), 300.0)
     start = op.init(P, None, adaptation=1e-3)

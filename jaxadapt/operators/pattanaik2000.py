@@ -544,9 +544,22 @@ def advance_sequence(params, state, G_rod, G_cone, dt):
 # -- the contract -------------------------------------------------------------
 
 
-def _centre(frame):
-    """The centre ``(x, y)`` of a frame ``(..., H, W, 3)``, pixels: the default gaze."""
-    return jnp.array([frame.shape[-2] - 1, frame.shape[-3] - 1], frame.dtype) / 2.0
+def _fixation(frames, gaze):
+    """The point ``(x, y)``, pixels, of frames ``(..., H, W, 3)`` that the
+    foveal goal and the diagnostics are read at, one per frame.
+
+    ``gaze`` clipped to the frame; the frame's centre where ``gaze`` is None
+    or a sample is not finite (NaN: a blink). This operator keeps no gaze in
+    its state, so a blink cannot hold the fixation before it:
+    :func:`jaxadapt.scenes.recorded_gaze` holds it in a recorded path
+    (as the 2015 operator holds it in its state).
+    """
+    H, W = frames.shape[-3:-1]
+    centre = jnp.array([W - 1, H - 1], frames.dtype) / 2.0
+    if gaze is None:
+        return jnp.broadcast_to(centre, frames.shape[:-3] + (2,))
+    clipped = jnp.clip(gaze, 0.0, 2.0 * centre)
+    return jnp.where(jnp.all(jnp.isfinite(gaze), axis=-1, keepdims=True), clipped, centre)
 
 
 @eqx.filter_jit
@@ -559,8 +572,8 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     first_frame : array, shape (H, W, 3)
         Linear RGB, cd/m2; the viewer is adapted to its goals.
     gaze : array, shape (2,), optional
-        Gaze point ``(x, y)`` in pixels, for the ``"foveal"`` goal (default:
-        the centre).
+        Gaze point ``(x, y)`` in pixels, for the ``"foveal"`` goal (default
+        and during a blink, NaN: the centre; see :func:`_fixation`).
     key : ignored
         The operator is deterministic.
     adaptation : float, optional
@@ -582,8 +595,7 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
     params = as_dtype(params, first_frame.dtype)
-    gaze = _centre(first_frame) if gaze is None else gaze
-    G_rod, G_cone = frame_goals(params, first_frame, gaze)
+    G_rod, G_cone = frame_goals(params, first_frame, _fixation(first_frame, gaze))
     return static_state(params, G_rod + guard, G_cone + guard)
 
 
@@ -631,7 +643,8 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     dt : float
         How long the frame is held, s.
     gaze : array, shape (2,), optional
-        Gaze point ``(x, y)``, pixels (``"foveal"`` goal; default the centre).
+        Gaze point ``(x, y)``, pixels (``"foveal"`` goal; default and during
+        a blink, NaN: the centre).
     key : ignored
         The operator is deterministic; accepted so that all operators share
         one signature.
@@ -650,7 +663,7 @@ def _step(params, state, frame, dt, gaze):
     guard, dt = check_frames_and_dt(frame, dt, 3, "frame")
     params, state, dt, gaze = as_dtype((params, state, dt[0], gaze), frame.dtype)
     state = jax.tree.map(lambda s: s + guard, state)
-    gaze = _centre(frame) if gaze is None else gaze
+    gaze = _fixation(frame, gaze)
     G_rod, G_cone = frame_goals(params, frame, gaze)
     one = jax.tree.map(lambda x: x[None], (G_rod, G_cone, state, frame, gaze))
     out, _ = _display(params, *one)
@@ -669,8 +682,9 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
         Duration of each frame, s (``1/fps``).
     gaze : array, shape (T, 2), optional
         Gaze path ``(x, y)`` in pixels, for the ``"foveal"`` goal and for
-        the point a local operator's diagnostics are read at (default: the
-        image centre).
+        the point a local operator's diagnostics are read at, clipped to
+        the frame (default, and for samples that are not finite, NaN
+        during a blink: the image centre; see :func:`_fixation`).
     key : ignored
         The operator is deterministic.
     state : State, optional
@@ -703,10 +717,9 @@ def _run(params, frames, dt, gaze, state):
     guard, dt = check_frames_and_dt(frames, dt, 4)
     params, state, dt, gaze = as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
-    if gaze is None:
-        gaze = jnp.broadcast_to(_centre(frames), (T, 2))
-    elif gaze.shape != (T, 2):
+    if gaze is not None and gaze.shape != (T, 2):
         raise ValueError(f"gaze: expected shape ({T}, 2) in pixels, got shape {gaze.shape}")
+    gaze = _fixation(frames, gaze)
     G_rod, G_cone = jax.vmap(frame_goals, (None, 0, 0))(params, frames, gaze)
     if state is None:
         state = static_state(params, G_rod[0], G_cone[0])
