@@ -10,6 +10,7 @@ overwrites nothing.
 import argparse
 import contextlib
 import csv
+import re
 import shutil
 import sys
 import tempfile
@@ -30,6 +31,15 @@ OPERATORS = (
     "ward-jnd",
 )
 CONTACT_FRAMES = 12
+#: Frame rate of FILE sequences unless --fps says otherwise, frames per second.
+FILE_FPS = 30.0
+#: Size of a local background estimator unless --background-scale says otherwise, pixels.
+BACKGROUND_SCALE = 8.0
+#: Names of the files ``jaxadapt render`` writes: an earlier render's, in
+#: the same folder, are replaced by the next one's.
+RENDER_OUTPUTS = re.compile(
+    r"frame_\d{5}\.(png|exr|pfm)|video\.mp4|contact_sheet\.png|adaptation\.png|diagnostics\.csv"
+)
 
 
 class UsageError(ValueError):
@@ -87,7 +97,7 @@ def build_parser():
     render.add_argument(
         "--scene",
         choices=sorted(SCENES),
-        default="tunnel",
+        default=None,
         help="built-in scene when no FILE is given (default: tunnel)",
     )
     render.add_argument(
@@ -95,7 +105,8 @@ def build_parser():
         type=_size,
         default=None,
         metavar="WxH",
-        help="frame size of the built-in scene (default: 480x270 tunnel, 384x256 title-step)",
+        help="frame size of the built-in scene (default: 480x270 tunnel, 384x256 title-step; "
+        "files keep their own)",
     )
     render.add_argument(
         "--duration",
@@ -107,8 +118,9 @@ def build_parser():
     render.add_argument(
         "--fps",
         type=_positive,
-        default=30.0,
-        help="frame rate of FILE sequences, frames per second (default: 30)",
+        default=None,
+        help="frames per second (default: 30 for FILE sequences, the scene's own for a "
+        "built-in scene: 30, or 1/30 ms for title-step)",
     )
     render.add_argument(
         "--multiplier",
@@ -151,7 +163,7 @@ def build_parser():
     render.add_argument(
         "--background-scale",
         type=_positive,
-        default=8.0,
+        default=None,
         metavar="PX",
         help="size of the local background estimator, pixels (default: 8)",
     )
@@ -159,8 +171,8 @@ def build_parser():
         "--adaptation-goal",
         choices=GOALS,
         default=None,
-        help="how the adaptation goal of each frame is found (default: the scene's own; "
-        "log_average for files)",
+        help="how pattanaik2000 finds the adaptation goal of each frame (default: the "
+        "scene's own; log_average for files)",
     )
     render.add_argument(
         "--pixels-per-degree",
@@ -170,7 +182,11 @@ def build_parser():
         "scene's own; 30 for files)",
     )
     render.add_argument(
-        "--out", type=Path, default=Path("out"), help="output folder (default: ./out)"
+        "--out",
+        type=Path,
+        default=Path("out"),
+        help="output folder (default: ./out); the frames, video, sheet, plot and diagnostics "
+        "of an earlier render there are replaced, other files are left alone",
     )
     render.add_argument(
         "--format",
@@ -184,8 +200,9 @@ def build_parser():
     render.add_argument(
         "--encoding",
         choices=("srgb", "gamma"),
-        default="srgb",
-        help="display encoding of png and mp4 output (default: srgb; gamma is 2.2)",
+        default=None,
+        help="display encoding of png and mp4 output (default: srgb; gamma is 2.2); not for "
+        "jacobs2015, whose display values are its own gamma encoding",
     )
     render.add_argument(
         "--chunk", type=int, default=32, help="frames processed per call (default: 32)"
@@ -284,23 +301,69 @@ GROUP_TEST_COLUMNS = (
 
 
 @contextlib.contextmanager
-def _staged(out):
+def _staged(out, replaces=None):
     """Yield a staging folder inside ``out``; move its files into ``out`` on success.
 
-    On any error nothing reaches ``out`` (earlier results stay as they
-    were), and the staging folder is removed either way.
+    On success, the files of ``out`` whose names match ``replaces`` (a
+    compiled pattern: an earlier run's outputs) and that this run did not
+    write are removed, so that the folder holds one run's outputs. On any
+    error nothing reaches ``out`` (earlier results stay as they were) and
+    the folders made for it are removed. The staging folder is removed
+    either way.
     """
+    made = next((p for p in [*reversed(out.parents), out] if not p.exists()), None)
+
+    def unmake():
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+
     try:
         out.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
     except OSError as e:
+        unmake()
         raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
     try:
-        yield staging
-        for path in sorted(staging.iterdir()):
-            path.replace(out / path.name)
+        try:
+            yield staging
+        except BaseException:
+            unmake()
+            raise
+        written = {path.name for path in staging.iterdir()}
+        for name in sorted(written):
+            (staging / name).replace(out / name)
+        earlier = [p for p in out.iterdir() if replaces and replaces.fullmatch(p.name)]
+        for path in earlier:
+            if path.name not in written and path.is_file():
+                path.unlink()
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def _check_options(args):
+    """Reject options that the chosen input or operator would ignore."""
+    if args.files:
+        for option in ("scene", "size", "duration"):
+            if getattr(args, option) is not None:
+                raise UsageError(f"--{option}: applies to a built-in scene, not to FILE input")
+    if args.adaptation_goal is not None and args.operator != "pattanaik2000":
+        raise UsageError(
+            f"--adaptation-goal: applies to --operator pattanaik2000, not {args.operator}"
+        )
+    if args.operator == "jacobs2015" and args.background != "global":
+        raise UsageError(
+            "--background: does not apply to --operator jacobs2015, which adapts to the "
+            "foveal luminance and finds local luminance itself"
+        )
+    if args.operator == "jacobs2015" and args.encoding is not None:
+        raise UsageError(
+            "--encoding: does not apply to --operator jacobs2015, whose display values are "
+            "its own gamma encoding"
+        )
+    if args.background_scale is not None and args.background == "global":
+        raise UsageError("--background-scale: applies to a local --background, not global")
+    if args.chunk < 1:
+        raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
 
 
 def _source(args):
@@ -308,13 +371,21 @@ def _source(args):
     from jaxadapt.scenes import SCENES
 
     if args.files:
-        return pipeline.from_files(args.files, args.fps, args.multiplier)
+        return pipeline.from_files(args.files, args.fps or FILE_FPS, args.multiplier)
     kwargs = {}
     if args.size is not None:
         kwargs["width"], kwargs["height"] = args.size
     if args.duration is not None:
         kwargs["duration"] = args.duration
-    return pipeline.from_scene(SCENES[args.scene](**kwargs), args.multiplier)
+    if args.fps is not None:
+        kwargs["fps"] = args.fps
+    source = pipeline.from_scene(SCENES[args.scene or "tunnel"](**kwargs), args.multiplier)
+    if len(source.times) == 0:
+        raise UsageError(
+            f"--duration: expected at least one frame, got {args.duration} s, shorter than "
+            "one frame of the scene"
+        )
+    return source
 
 
 def _operator(args, source):
@@ -333,7 +404,7 @@ def _operator(args, source):
             goal=goal,
             pixels_per_degree=ppd,
             background=args.background,
-            background_scale=args.background_scale,
+            background_scale=args.background_scale or BACKGROUND_SCALE,
         )
         where = "goal " + goal if args.background == "global" else args.background + " background"
         title = f"{source.name}: Pattanaik et al. 2000, {where}"
@@ -347,7 +418,9 @@ def _operator(args, source):
     from jaxadapt.operators import classic
 
     params = classic.Params(
-        classic.TONE_CURVES[args.operator](), args.background, args.background_scale
+        classic.TONE_CURVES[args.operator](),
+        args.background,
+        args.background_scale or BACKGROUND_SCALE,
     )
     title = f"{source.name}: {args.operator}, {args.background} background"
     return classic, params, partial(figures.plot_columns, title=title), False
@@ -359,14 +432,15 @@ def render(args, console):
 
     from jaxadapt import display, figures, io, pipeline
 
-    if args.chunk < 1:
-        raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
+    _check_options(args)
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
     if args.gaze is not None:
         source = pipeline.with_gaze(source, args.gaze)
     op, params, plot, encoded = _operator(args, source)
-    encode = (lambda J: J) if encoded else display.ENCODINGS[args.encoding]
+    # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
+    encoding = "gamma" if encoded else args.encoding or "srgb"
+    encode = (lambda J: J) if encoded else display.ENCODINGS[encoding]
 
     out = args.out
     T = len(source.times)
@@ -375,21 +449,22 @@ def render(args, console):
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )
     contact, tables = [], []
-    with _staged(out) as staging:
+    with _staged(out, replaces=RENDER_OUTPUTS) as staging:
         with contextlib.ExitStack() as stack:
             send_video = (
                 stack.enter_context(io.video_writer(staging / "video.mp4", fps))
                 if "mp4" in formats
                 else (lambda frames: None)
             )
-            progress = stack.enter_context(Progress(console=console, transient=True))
+            bar = Progress(console=console, transient=True, disable=not console.is_terminal)
+            progress = stack.enter_context(bar)
             task = progress.add_task(f"rendering {source.name}", total=T)
             key = jax.random.key(args.seed)
             for idx, linear, table in pipeline.chunks(op, params, source, args.chunk, key):
                 coded = display.to_uint8(encode(linear))
                 for k, i in enumerate(idx):
                     if "png" in formats:
-                        io.write_image(staging / f"frame_{i:05d}.png", coded[k])
+                        io.write_image(staging / f"frame_{i:05d}.png", coded[k], encoding)
                     if "exr" in formats:
                         io.write_image(staging / f"frame_{i:05d}.exr", linear[k])
                     if "pfm" in formats:
@@ -401,7 +476,8 @@ def render(args, console):
                 progress.advance(task, len(idx))
         table = pipeline.concatenate(tables)
         io.write_columns(staging / "diagnostics.csv", table)
-        io.write_image(staging / "contact_sheet.png", figures.contact_sheet(np.stack(contact)))
+        sheet = figures.contact_sheet(np.stack(contact))
+        io.write_image(staging / "contact_sheet.png", sheet, encoding)
         plot(staging / "adaptation.png", table)
         written = len(list(staging.iterdir()))
     console.print(
@@ -420,7 +496,14 @@ def psychometric_fit(args, console):
 
     if args.resamples < 0:
         raise UsageError(f"--resamples: expected a number >= 0, got {args.resamples}")
-    groups = trials.group_trials(trials.read_trials(args.trials))
+    trial_table = trials.read_trials(args.trials)
+    conditions = list(dict.fromkeys(trial_table.condition))
+    if len(conditions) > 1 and args.control not in conditions:
+        raise UsageError(
+            f"--control: expected one of the conditions of {args.trials} "
+            f"({', '.join(map(str, conditions))}), got {args.control!r}"
+        )
+    groups = trials.group_trials(trial_table)
     table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
     out = args.out
     condition = np.asarray(table.condition)
@@ -560,6 +643,7 @@ def main(argv=None):
     runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
     console = Console(stderr=True)
     import equinox as eqx
+    import jax
 
     try:
         if args.command == "render":
@@ -569,10 +653,29 @@ def main(argv=None):
         elif args.command == "psychometric":
             psychometric_fit(args, console)
     except (UsageError, ValueError, FileNotFoundError, OSError, eqx.EquinoxRuntimeError) as e:
-        message = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        print(f"jaxadapt: error: {message}", file=sys.stderr)
+        print(f"jaxadapt: error: {_message(e)}", file=sys.stderr)
+        return 2
+    except jax.errors.JaxRuntimeError as e:
+        if "RESOURCE_EXHAUSTED" not in str(e):
+            raise
+        print(
+            f"jaxadapt: error: out of memory ({_message(e)}); try a smaller --chunk or --size",
+            file=sys.stderr,
+        )
         return 2
     return 0
+
+
+def _message(error):
+    """The one line that says what went wrong: the first line of the error,
+    or for an ``equinox`` check inside compiled code (whose text starts with
+    the stack) the message after its class name."""
+    lines = str(error).strip().splitlines()
+    for line in lines:
+        _, mark, message = line.partition("EquinoxRuntimeError: ")
+        if mark:
+            return message
+    return lines[0] if lines else type(error).__name__
 
 
 if __name__ == "__main__":

@@ -42,6 +42,8 @@ def read_hdr(path):
         The file cannot be read, or does not hold floating-point data.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: expected an HDR image file, got a folder")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     # PFM stores its rows bottom to top. OpenImageIO turns them the right way
@@ -90,8 +92,18 @@ def atomic_path(path):
             os.remove(tmp)
 
 
-def write_image(path, pixels):
-    """Write ``(H, W, C)`` pixels: uint8 (PNG) or float32 (EXR, PFM, TIFF)."""
+#: OpenImageIO's names of the display encodings of :mod:`jaxadapt.display`,
+#: with which 8-bit files are tagged (PNG: an sRGB chunk, or a gAMA of 1/2.2).
+COLOUR_SPACES = {"srgb": "sRGB", "gamma": "Gamma2.2"}
+
+
+def write_image(path, pixels, encoding="srgb"):
+    """Write ``(H, W, C)`` pixels: uint8 (PNG) or float32 (EXR, PFM, TIFF).
+
+    ``encoding`` (``"srgb"`` or ``"gamma"``, see :mod:`jaxadapt.display`)
+    tags 8-bit pixels with the transfer function they were encoded with, so
+    that colour-managed viewers decode them with it.
+    """
     pixels = np.ascontiguousarray(pixels)
     kind = "uint8" if pixels.dtype == np.uint8 else "float"
     with atomic_path(path) as tmp:
@@ -99,6 +111,8 @@ def write_image(path, pixels):
         if out is None:
             raise ValueError(f"{path}: no image writer for this format")
         spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], kind)
+        if kind == "uint8":
+            spec.attribute("oiio:ColorSpace", COLOUR_SPACES[encoding])
         if not (out.open(tmp, spec) and out.write_image(pixels)):
             msg = out.geterror().strip()
             out.close()

@@ -52,11 +52,25 @@ class Source(NamedTuple):
     pixels_per_degree: float
 
 
+def _calibrated(frames, multiplier, name):
+    """``frames * multiplier`` in float32; a ValueError naming ``name`` (the
+    frames' source) where that overflows."""
+    with np.errstate(over="ignore"):
+        calibrated = frames * np.float32(multiplier)
+    if not np.all(np.isfinite(calibrated)):
+        raise ValueError(
+            f"{name}: times the multiplier {multiplier:g}, values exceed the float32 range "
+            f"(largest value {float(frames.max()):g})"
+        )
+    return calibrated
+
+
 def from_scene(scene, multiplier=1.0):
     """A :class:`Source` over a :class:`jaxadapt.scenes.Scene`, scaled by ``multiplier``."""
 
     def frames(idx):
-        return np.asarray(scene.render(scene.times[idx]), np.float32) * np.float32(multiplier)
+        rendered = np.asarray(scene.render(scene.times[idx]), np.float32)
+        return _calibrated(rendered, multiplier, f"scene {scene.name}")
 
     def gaze(idx):
         return np.asarray(scene.gaze(scene.times[idx]))
@@ -97,6 +111,8 @@ def from_files(paths, fps, multiplier=1.0):
     paths = [Path(p) for p in paths]
     first = read_hdr(paths[0])
     for p in paths[1:]:
+        if p.is_dir():
+            raise ValueError(f"{p}: expected an HDR image file, got a folder")
         if not p.is_file():
             raise FileNotFoundError(f"{p}: no such file")
 
@@ -113,7 +129,7 @@ def from_files(paths, fps, multiplier=1.0):
                 f"{paths[i]}: expected finite, non-negative values, got {int(bad.sum())} "
                 "negative, NaN or infinite values"
             )
-        return frame * np.float32(multiplier)
+        return _calibrated(frame, multiplier, paths[i])
 
     centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
     T = len(paths)

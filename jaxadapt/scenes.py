@@ -340,22 +340,27 @@ def read_gaze_csv(path):
     if not path.is_file():
         raise FileNotFoundError(f"gaze: expected a CSV file of t,x,y rows, got {str(path)!r}")
     rows = []
-    with path.open(newline="") as f:
-        for line, row in enumerate(csv.reader(f), start=1):
-            cells = [c.strip() for c in row]
-            if not any(cells) or (line == 1 and cells[:1] == ["t"]):
-                continue
-            try:
-                if len(cells) != 3:
-                    raise ValueError
-                t = float(cells[0])
-                xy = [float(c) if c else np.nan for c in cells[1:]]
-            except ValueError:
-                raise ValueError(
-                    f"gaze: expected rows of three numbers t,x,y (s, pixels) in {path}, "
-                    f"got {','.join(row)!r} on line {line}"
-                ) from None
-            rows.append([t, *xy])
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise ValueError(
+            f"gaze: expected a text CSV of t,x,y rows, got binary data in {path}"
+        ) from None
+    for line, row in enumerate(csv.reader(text.splitlines()), start=1):
+        cells = [c.strip() for c in row]
+        if not any(cells) or (line == 1 and cells[:1] == ["t"]):
+            continue
+        try:
+            if len(cells) != 3:
+                raise ValueError
+            t = float(cells[0])
+            xy = [float(c) if c else np.nan for c in cells[1:]]
+        except ValueError:
+            raise ValueError(
+                f"gaze: expected rows of three numbers t,x,y (s, pixels) in {path}, "
+                f"got {','.join(row)!r} on line {line}"
+            ) from None
+        rows.append([t, *xy])
     if not rows:
         raise ValueError(f"gaze: expected at least one t,x,y row in {path}, got none")
     data = np.asarray(rows)

@@ -150,6 +150,16 @@ def test_ward_jnd_is_ward_1994_scale_factor_with_the_offset_of_eq_6_3():
     np.testing.assert_allclose(luminance(got), expected, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("tvi, cut", [("blackwell", 0.370), ("rushton-macleod", 0.0305)])
+def test_ward_jnd_with_a_global_background_clips_below_its_cut(tvi, cut):
+    # The offset of Eq 6.3 (the docstring's warning): below I_b - I_bd dI_b /
+    # dI_bd the display luminance is negative and clips to black.
+    I_b = 4200.0
+    params = classic.WardJND(L_da=50.0, tvi=tvi)
+    below, above = params.curve(jnp.asarray([0.99, 1.01]) * cut * I_b, jnp.asarray(I_b))
+    assert float(below) < 0 < float(above)
+
+
 @pytest.mark.parametrize("tvi", ["blackwell", "rushton-macleod"])
 def test_ward_jnd_preserves_the_number_of_jnds(tvi):
     I, I_b, I_bd = jnp.asarray([5.0, 80.0, 300.0]), jnp.asarray(60.0), 50.0

@@ -2,11 +2,14 @@
 
 import csv
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxadapt import io, runtime
-from jaxadapt.cli import main
+from jaxadapt.cli import _message, main
+from jaxadapt.operators import pattanaik2000 as op
 
 SMALL = ["--size", "48x32", "--duration", "0.3"]
 
@@ -135,6 +138,90 @@ def test_unwritable_output(tmp_path, capsys):
     _assert_one_line_error(status, err, "--out", str(blocker))
 
 
+def test_a_sequence_shorter_than_one_frame_is_refused(tmp_path, capsys):
+    out = tmp_path / "new" / "out"
+    status, err = _run(capsys, "render", "--duration", "0.01", "--out", str(out))
+    _assert_one_line_error(status, err, "--duration", "at least one frame")
+    assert not (tmp_path / "new").exists()  # a failed run leaves no folder behind
+
+
+def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):
+    bad = tmp_path / "bad.exr"
+    io.write_image(bad, np.full((4, 4, 3), np.nan, np.float32))
+    status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "bad.exr", "non-negative")
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
+    out = tmp_path / "out"
+    args = ["render", "--scene", "title-step", "--size", "24x16", "--out", str(out)]
+    assert _run(capsys, *args, "--duration", "0.3")[0] == 0
+    (out / "notes.txt").write_text("mine")
+    assert _run(capsys, *args, "--duration", "0.09", "--format", "exr")[0] == 0
+    names = sorted(p.name for p in out.iterdir())
+    frames = [f"frame_{k:05d}.exr" for k in range(3)]
+    expected = ["adaptation.png", "contact_sheet.png", "diagnostics.csv", *frames, "notes.txt"]
+    assert names == expected
+
+
+def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
+    bright = tmp_path / "bright.exr"
+    io.write_image(bright, np.full((4, 4, 3), 1e8, np.float32))
+    args = ["render", str(bright), "--multiplier", "1e32"]
+    status, err = _run(capsys, *args, "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "bright.exr", "multiplier")
+
+
+def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
+    args = ["render", "--scene", "title-step", *SMALL, "--multiplier", "1e38"]
+    status, err = _run(capsys, *args, "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "scene title-step", "multiplier")
+    # A value check compiled into an operator raises an error whose text
+    # starts with the stack; the command line prints its message.
+    with pytest.raises(eqx.EquinoxRuntimeError) as error:
+        op.run(op.Params(), jnp.full((2, 4, 4, 3), jnp.inf), 0.1)
+    assert _message(error.value) == "frames: expected finite, non-negative luminance (cd/m2)"
+
+
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--operator", "jacobs2015", "--background", "box"], "--background"),
+        (["--operator", "jacobs2015", "--encoding", "gamma"], "--encoding"),
+        (["--operator", "ward-jnd", "--adaptation-goal", "foveal"], "--adaptation-goal"),
+        (["--background-scale", "4"], "--background-scale"),
+        (["FILE", "--size", "8x8"], "--size"),
+        (["FILE", "--scene", "flash"], "--scene"),
+    ],
+)
+def test_options_that_would_be_ignored_are_refused(tmp_path, capsys, args, option):
+    image = tmp_path / "in.exr"
+    io.write_image(image, np.ones((4, 4, 3), np.float32))
+    args = [str(image) if a == "FILE" else a for a in args]
+    status, err = _run(capsys, "render", *SMALL * ("FILE" not in args), *args, "--out", "o")
+    _assert_one_line_error(status, err, option)
+
+
+def test_fps_sets_the_frame_rate_of_a_builtin_scene(tmp_path, capsys):
+    out = tmp_path / "out"
+    args = ["render", "--scene", "flash", "--size", "16x16", "--duration", "0.5", "--fps", "10"]
+    assert _run(capsys, *args, "--format", "exr", "--out", str(out))[0] == 0
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    assert [float(r["t"]) for r in rows] == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4])
+
+
+def test_gaze_and_trial_files_that_are_not_text_are_named(tmp_path, capsys):
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(b"\xff\xfe\x00bin")
+    status, err = _run(capsys, "render", *SMALL, "--gaze", str(binary), "--out", "o")
+    _assert_one_line_error(status, err, "binary.csv", "binary")
+    status, err = _run(capsys, "psychometric", "fit", str(binary), "--out", str(tmp_path / "f"))
+    _assert_one_line_error(status, err, "binary.csv", "binary")
+    status, err = _run(capsys, "render", str(tmp_path), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, str(tmp_path), "folder")
+
+
 def test_help_explains_every_option(capsys):
     with pytest.raises(SystemExit):
         main(["render", "--help"])
@@ -150,20 +237,9 @@ def test_help_explains_every_option(capsys):
 def test_operators_and_backgrounds(tmp_path, capsys, operator, background):
     out = tmp_path / "out"
     args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "0.2"]
-    status, err = _run(
-        capsys,
-        *args,
-        "--operator",
-        operator,
-        "--background",
-        background,
-        "--background-scale",
-        "2",
-        "--format",
-        "exr",
-        "--out",
-        str(out),
-    )
+    args += ["--operator", operator, "--background", background]
+    args += [] if background == "global" else ["--background-scale", "2"]
+    status, err = _run(capsys, *args, "--format", "exr", "--out", str(out))
     assert status == 0, err
     frame = io.read_hdr(out / "frame_00005.exr")
     assert np.all((frame >= 0) & (frame <= 1)) and frame.max() > 0.05
@@ -251,6 +327,8 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     (test,) = list(csv.DictReader(open(out / "group_test.csv")))
     assert float(test["shift"]) == pytest.approx(0.15, abs=0.06) and float(test["p"]) < 0.01
     assert (out / "psychometric.png").stat().st_size > 0 and (out / "pse.png").exists()
+    status, err = _run(capsys, "psychometric", "fit", str(trials), "--control", "Control")
+    _assert_one_line_error(status, err, "--control", "control, manipulated", "'Control'")
 
 
 def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):

@@ -31,3 +31,17 @@ def test_hdr_formats_round_trip(tmp_path, suffix):
     io.write_image(path, image)
     rtol = 1e-2 if suffix == ".hdr" else 0  # RGBE keeps 8 bits of mantissa
     np.testing.assert_allclose(io.read_hdr(path), image, rtol=rtol)
+
+
+@pytest.mark.parametrize("encoding, chunk", [("srgb", b"sRGB"), ("gamma", b"gAMA")])
+def test_png_is_tagged_with_its_encoding(tmp_path, encoding, chunk):
+    # PNG (ISO/IEC 15948): an sRGB chunk, or a gAMA chunk holding 1/2.2 x 1e5
+    # and no sRGB chunk, which would override it in a colour-managed viewer.
+    path = tmp_path / "frame.png"
+    io.write_image(path, np.zeros((4, 4, 3), np.uint8), encoding=encoding)
+    data = path.read_bytes()
+    assert chunk in data
+    if encoding == "gamma":
+        assert b"sRGB" not in data
+        at = data.index(b"gAMA") + 4
+        assert int.from_bytes(data[at : at + 4], "big") == round(1e5 / 2.2)

@@ -302,9 +302,14 @@ class WardJND(eqx.Module):
     its background, counted with the scene's threshold ``dI(I_b)``, are
     reproduced above the display background ``I_bd`` in display JNDs. The
     result is relative to display white ``L_dmax``. With a global
-    background it is Ward's (1994) contrast-based scale factor (plus the
-    offset of Eq 6.3); with a local one, the compression that the
-    log-linear TVI provides (§6.3.2).
+    background its slope is Ward's (1994) contrast-based scale factor, but
+    Eq 6.3 adds an offset that Ward's operator (``I_d = m I``) does not
+    have: where the display's Weber fraction exceeds the scene's, every
+    pixel below ``I_b - I_bd dI(I_b) / dI(I_bd)`` maps below zero and clips
+    to black (Blackwell's TVI, ``I_bd`` = 50 cd/m2 and a 4200 cd/m2
+    background: 0.37 of the background; Rushton-MacLeod's: 0.03). With a
+    local background, the use §6.3.2 presents it for, each pixel stays near
+    its own background and the log-linear TVI compresses the range.
 
     Attributes
     ----------

@@ -25,6 +25,7 @@ being row 1) or the column.
 """
 
 import csv
+from pathlib import Path
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -197,23 +198,29 @@ def read_trials(path):
         0 or 1, negative or fractional counts, ``n_yes > n_total``; the
         message names the file, the row and the column.
     """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file (expected a CSV trial table)")
     with open(path, newline="", encoding="utf-8-sig") as file:
         reader = csv.reader(file)
-        header = next(reader, None)
-        if header is None:
-            raise ValueError(f"{path}: expected a header row, got an empty file")
-        index = _header(path, header)
-        cells, rows = [], []
-        for cells_of_row in reader:
-            if not any(c.strip() for c in cells_of_row):
-                continue
-            if len(cells_of_row) != len(header):
-                raise ValueError(
-                    f"{path}, row {reader.line_num}: expected {len(header)} cells, "
-                    f"got {len(cells_of_row)}"
-                )
-            cells.append(cells_of_row)
-            rows.append(reader.line_num)
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise ValueError(f"{path}: expected a header row, got an empty file")
+            index = _header(path, header)
+            cells, rows = [], []
+            for cells_of_row in reader:
+                if not any(c.strip() for c in cells_of_row):
+                    continue
+                if len(cells_of_row) != len(header):
+                    raise ValueError(
+                        f"{path}, row {reader.line_num}: expected {len(header)} cells, "
+                        f"got {len(cells_of_row)}"
+                    )
+                cells.append(cells_of_row)
+                rows.append(reader.line_num)
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: expected a UTF-8 text CSV, got binary data") from None
     if not cells:
         raise ValueError(f"{path}: expected at least one data row, got none")
     column = {name: [c[i] for c in cells] for name, i in index.items()}
