@@ -9,6 +9,11 @@ mouth, then times:
   read from a file, minus the time of ``cat`` on the same stream (its core
   time; Debian package ``pfstmo``).
 
+With ``--background`` other than ``global`` the operator adapts per pixel
+to a local background (a per-pixel state advanced by the exact kinetics),
+and pfstmo runs with ``--local`` (its local mode, which keeps the
+adaptation of its first frame: the nearest peer, doing less).
+
 jaxadapt is timed twice: in this process, with glibc's default ``malloc``,
 and in a child process that first calls
 :func:`jaxadapt.runtime.retain_freed_memory` (as ``jaxadapt render`` does),
@@ -21,8 +26,9 @@ first is timed.
 Usage::
 
     python benchmarks/bench_pattanaik2000.py [--size 1920x1080] [--frames 60]
+                                             [--background global]
 
-Writes ``benchmarks/results/pattanaik2000_<label>.json``.
+Writes ``benchmarks/results/pattanaik2000_<label>_<size>[_<background>].json``.
 """
 
 import argparse
@@ -54,10 +60,10 @@ def tunnel_frames(width, height, count, start=3.0, chunk=8):
     )
 
 
-def time_jaxadapt(frames, repeats):
+def time_jaxadapt(frames, repeats, background="global"):
     """Median seconds of one ``run`` over the frames, and the page faults and
     system seconds per call."""
-    params = op.Params()
+    params = op.Params(background=background)
     device_frames = jax.device_put(jnp.asarray(frames))
     dt = jnp.float32(1 / FPS)
 
@@ -87,13 +93,15 @@ def time_jaxadapt_retained(args):
     """:func:`time_jaxadapt` in a child process that keeps freed memory."""
     command = [sys.executable, "-c", CHILD, __file__, "--size", args.size]
     command += ["--frames", str(args.frames), "--repeats", str(args.repeats), "--timing-only"]
+    command += ["--background", args.background]
     here = Path(__file__).parent  # where ``common`` is imported from
     done = subprocess.run(command, capture_output=True, text=True, check=True, cwd=here)
     return json.loads(done.stdout.splitlines()[-1])
 
 
-def time_pfstmo(frames, repeats):
-    """Core seconds of ``pfstmo_pattanaik00 -t`` on the frames, or None if absent."""
+def time_pfstmo(frames, repeats, local=False):
+    """Core seconds of ``pfstmo_pattanaik00 -t`` (``--local`` if ``local``) on
+    the frames, or None if absent."""
     if shutil.which("pfstmo_pattanaik00") is None or shutil.which("pfsin") is None:
         return None
     with tempfile.TemporaryDirectory() as tmp:
@@ -114,9 +122,8 @@ def time_pfstmo(frames, repeats):
 
             return go
 
-        operator = median_seconds(
-            pipe("pfstmo_pattanaik00", "-t", "--fps", str(FPS)), repeats=repeats
-        )
+        options = ["-t", "--fps", str(FPS)] + (["--local"] if local else [])
+        operator = median_seconds(pipe("pfstmo_pattanaik00", *options), repeats=repeats)
         copy = median_seconds(pipe("cat"), repeats=repeats)
     return operator - copy
 
@@ -128,25 +135,32 @@ def main():
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--label", default=None, help="machine label for the result file")
     parser.add_argument("--no-pfstmo", action="store_true", help="time jaxadapt only")
+    parser.add_argument(
+        "--background", default="global", help="global, or a local background (e.g. gaussian)"
+    )
     parser.add_argument("--timing-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     if args.timing_only:  # the child of time_jaxadapt_retained
-        timing = time_jaxadapt(tunnel_frames(width, height, args.frames), args.repeats)
+        frames = tunnel_frames(width, height, args.frames)
+        timing = time_jaxadapt(frames, args.repeats, args.background)
         print(json.dumps({**timing, "copy_bytes_per_s": copy_bandwidth()}))
         return
 
     frames = tunnel_frames(width, height, args.frames)
-    default = time_jaxadapt(frames, args.repeats)
+    default = time_jaxadapt(frames, args.repeats, args.background)
     # On a GPU the frames live in JAX's own pool of device memory: no child.
     retained = time_jaxadapt_retained(args) if jax.default_backend() == "cpu" else None
     ours = (retained or default)["seconds"]
-    theirs = None if args.no_pfstmo else time_pfstmo(frames, args.repeats)
+    local = args.background != "global"
+    theirs = None if args.no_pfstmo else time_pfstmo(frames, args.repeats, local)
     bytes_moved = 2 * frames.nbytes  # read the frames, write the display frames
     bandwidth = (retained or {}).get("copy_bytes_per_s") or copy_bandwidth()
     record = {
         "machine": machine(args.label),
         "size": [width, height],
+        "background": args.background,
+        "pfstmo_options": "-t --local" if local else "-t",
         "frames": args.frames,
         "repeats": args.repeats,
         "jaxadapt_seconds": ours,
@@ -163,7 +177,8 @@ def main():
         "speedup_default_malloc": None if theirs is None else theirs / default["seconds"],
     }
     label = record["machine"]["backend"] if args.label is None else args.label
-    path = write_result(f"pattanaik2000_{label}_{width}x{height}", record)
+    suffix = f"_{args.background}" if local else ""
+    path = write_result(f"pattanaik2000_{label}_{width}x{height}{suffix}", record)
     for key, value in record.items():
         if key != "machine":
             print(f"{key:>20}: {value}")

@@ -149,8 +149,8 @@ def build_parser():
     render.add_argument(
         "--seed",
         type=int,
-        default=0,
-        help="seed of the random draws (jacobs2015: acuity noise, dithering); default 0",
+        default=None,
+        help="seed of the random draws of jacobs2015 (acuity noise, dithering); default 0",
     )
     render.add_argument(
         "--background",
@@ -360,6 +360,15 @@ def _check_options(args):
             "--encoding: does not apply to --operator jacobs2015, whose display values are "
             "its own gamma encoding"
         )
+    if args.seed is not None and args.operator != "jacobs2015":
+        raise UsageError(f"--seed: applies to --operator jacobs2015, not {args.operator}")
+    static = args.operator not in ("pattanaik2000", "jacobs2015")
+    for option in ("gaze", "pixels_per_degree"):
+        if static and getattr(args, option) is not None:
+            raise UsageError(
+                f"--{option.replace('_', '-')}: does not apply to the static tone curve "
+                f"{args.operator}"
+            )
     if args.background_scale is not None and args.background == "global":
         raise UsageError("--background-scale: applies to a local --background, not global")
     if args.chunk < 1:
@@ -459,7 +468,7 @@ def render(args, console):
             bar = Progress(console=console, transient=True, disable=not console.is_terminal)
             progress = stack.enter_context(bar)
             task = progress.add_task(f"rendering {source.name}", total=T)
-            key = jax.random.key(args.seed)
+            key = jax.random.key(args.seed or 0)
             for idx, linear, table in pipeline.chunks(op, params, source, args.chunk, key):
                 coded = display.to_uint8(encode(linear))
                 for k, i in enumerate(idx):

@@ -191,6 +191,8 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
         (["--operator", "jacobs2015", "--encoding", "gamma"], "--encoding"),
         (["--operator", "ward-jnd", "--adaptation-goal", "foveal"], "--adaptation-goal"),
         (["--background-scale", "4"], "--background-scale"),
+        (["--seed", "4"], "--seed"),
+        (["--operator", "schlick1994", "--pixels-per-degree", "20"], "--pixels-per-degree"),
         (["FILE", "--size", "8x8"], "--size"),
         (["FILE", "--scene", "flash"], "--scene"),
     ],

@@ -531,7 +531,9 @@ def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     np.testing.assert_allclose(t, [0.0, 0.5, 1.0])
     assert np.isnan(xy[1]).all()
     gaze = scenes.recorded_gaze(t, xy)(np.array([0.2, 0.7, 2.0]))
-    assert np.isnan(gaze[1]).all() and gaze[2].tolist() == [30.0, 40.0]
+    assert gaze.tolist() == [[10.0, 20.0], [10.0, 20.0], [30.0, 40.0]]  # the blink holds
+    starts_blinking = scenes.recorded_gaze(t[1:], xy[1:])(np.array([0.7, 1.2]))
+    assert np.isnan(starts_blinking[0]).all() and starts_blinking[1].tolist() == [30.0, 40.0]
     with pytest.raises(FileNotFoundError, match="gaze"):
         scenes.read_gaze_csv(tmp_path / "missing.csv")
     path.write_text("0.0,10\n")
