@@ -120,7 +120,7 @@ def build_parser():
         type=_positive,
         default=None,
         help="frames per second (default: 30 for FILE sequences, the scene's own for a "
-        "built-in scene: 30, or 1/30 ms for title-step)",
+        "built-in scene: 30, or one frame per 30 ms for title-step)",
     )
     render.add_argument(
         "--multiplier",
@@ -143,8 +143,9 @@ def build_parser():
         type=Path,
         default=None,
         metavar="CSV",
-        help="gaze recording: rows t,x,y (s, pixels; x,y empty or nan during a blink); "
-        "default: the scene's own path, the centre of the frame for files",
+        help="gaze recording: rows t,x,y (s, pixels), each held until the next; x,y empty "
+        "or nan during a blink, which holds the fixation before it; default: the scene's "
+        "own path, the centre of the frame for files",
     )
     render.add_argument(
         "--seed",
