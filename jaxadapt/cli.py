@@ -35,11 +35,13 @@ CONTACT_FRAMES = 12
 FILE_FPS = 30.0
 #: Size of a local background estimator unless --background-scale says otherwise, pixels.
 BACKGROUND_SCALE = 8.0
-#: Names of the files ``jaxadapt render`` writes: an earlier render's, in
-#: the same folder, are replaced by the next one's.
+#: Names of the files ``jaxadapt render`` writes.
 RENDER_OUTPUTS = re.compile(
     r"frame_\d{5}\.(png|exr|pfm)|video\.mp4|contact_sheet\.png|adaptation\.png|diagnostics\.csv"
 )
+#: A render's list, in its folder, of the files it wrote: the next render
+#: into the folder removes those of them it does not write again.
+MANIFEST = ".jaxadapt-render"
 
 
 class UsageError(ValueError):
@@ -186,8 +188,8 @@ def build_parser():
         "--out",
         type=Path,
         default=Path("out"),
-        help="output folder (default: ./out); the frames, video, sheet, plot and diagnostics "
-        "of an earlier render there are replaced, other files are left alone",
+        help="output folder (default: ./out); what an earlier render wrote there (listed in "
+        "its .jaxadapt-render) is replaced, other files and the inputs are left alone",
     )
     render.add_argument(
         "--format",
@@ -239,8 +241,8 @@ def build_parser():
     )
     fit.add_argument(
         "--control",
-        default="control",
-        help="condition the others are compared with (default: control)",
+        default=None,
+        help="condition the others are compared with (default: control, if the table has it)",
     )
     fit.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
     simulate = psy.add_parser(
@@ -302,14 +304,16 @@ GROUP_TEST_COLUMNS = (
 
 
 @contextlib.contextmanager
-def _staged(out, replaces=None):
+def _staged(out, replaces=None, keep=()):
     """Yield a staging folder inside ``out``; move its files into ``out`` on success.
 
-    On success, the files of ``out`` whose names match ``replaces`` (a
-    compiled pattern: an earlier run's outputs) and that this run did not
-    write are removed, so that the folder holds one run's outputs. On any
-    error nothing reaches ``out`` (earlier results stay as they were) and
-    the folders made for it are removed. The staging folder is removed
+    With ``replaces`` (a compiled pattern of output names), the names this
+    run wrote are listed in ``out/MANIFEST``, and on success the files that
+    an earlier run listed there, that match ``replaces`` and that this run
+    did not write are removed, so that the folder holds one run's outputs;
+    nothing else is, and never a path in ``keep`` (this run's inputs). On
+    any error nothing reaches ``out`` (earlier results stay as they were)
+    and the folders made for it are removed. The staging folder is removed
     either way.
     """
     made = next((p for p in [*reversed(out.parents), out] if not p.exists()), None)
@@ -330,12 +334,18 @@ def _staged(out, replaces=None):
         except BaseException:
             unmake()
             raise
-        written = {path.name for path in staging.iterdir()}
-        for name in sorted(written):
+        written = sorted(path.name for path in staging.iterdir())
+        earlier = []
+        if replaces is not None:
+            with contextlib.suppress(OSError, UnicodeDecodeError):
+                earlier = (out / MANIFEST).read_text().splitlines()
+            (staging / MANIFEST).write_text("".join(f"{name}\n" for name in written))
+        for name in sorted(path.name for path in staging.iterdir()):
             (staging / name).replace(out / name)
-        earlier = [p for p in out.iterdir() if replaces and replaces.fullmatch(p.name)]
-        for path in earlier:
-            if path.name not in written and path.is_file():
+        keep = {Path(p).resolve() for p in keep}
+        for name in set(earlier) - set(written):
+            path = out / name
+            if replaces.fullmatch(name) and path.is_file() and path.resolve() not in keep:
                 path.unlink()
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -459,7 +469,8 @@ def render(args, console):
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )
     contact, tables = [], []
-    with _staged(out, replaces=RENDER_OUTPUTS) as staging:
+    inputs = [*args.files, *([args.gaze] if args.gaze else [])]
+    with _staged(out, replaces=RENDER_OUTPUTS, keep=inputs) as staging:
         with contextlib.ExitStack() as stack:
             send_video = (
                 stack.enter_context(io.video_writer(staging / "video.mp4", fps))
@@ -508,27 +519,28 @@ def psychometric_fit(args, console):
         raise UsageError(f"--resamples: expected a number >= 0, got {args.resamples}")
     trial_table = trials.read_trials(args.trials)
     conditions = list(dict.fromkeys(trial_table.condition))
-    if len(conditions) > 1 and args.control not in conditions:
+    if args.control is not None and args.control not in conditions:
         raise UsageError(
             f"--control: expected one of the conditions of {args.trials} "
             f"({', '.join(map(str, conditions))}), got {args.control!r}"
         )
+    control = args.control or "control"
     groups = trials.group_trials(trial_table)
     table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
     out = args.out
     condition = np.asarray(table.condition)
     rows = []
     for other in dict.fromkeys(table.condition):
-        if other == args.control or args.control not in condition:
+        if other == control or control not in condition:
             continue
         c = stats.compare(
             jnp.asarray(table.pse[condition == other]),
-            jnp.asarray(table.pse[condition == args.control]),
+            jnp.asarray(table.pse[condition == control]),
         )
         rows.append(
             {
                 "condition": other,
-                "control": args.control,
+                "control": control,
                 "median": float(c.median_x),
                 "median_control": float(c.median_y),
                 "shift": float(c.shift),

@@ -40,7 +40,7 @@ def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, 
         "rule",
     ]
     assert float(rows[1]["G_cone"]) == pytest.approx(1000, rel=0.01)
-    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging left
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".jaxadapt-render"]
 
 
 def test_tunnel_scene_chunks_give_the_same_as_one_call(tmp_path, capsys):
@@ -161,8 +161,26 @@ def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
     assert _run(capsys, *args, "--duration", "0.09", "--format", "exr")[0] == 0
     names = sorted(p.name for p in out.iterdir())
     frames = [f"frame_{k:05d}.exr" for k in range(3)]
-    expected = ["adaptation.png", "contact_sheet.png", "diagnostics.csv", *frames, "notes.txt"]
-    assert names == expected
+    files = ["adaptation.png", "contact_sheet.png", "diagnostics.csv", *frames, "notes.txt"]
+    assert names == [".jaxadapt-render", *files]
+
+
+def test_a_render_removes_only_what_an_earlier_render_wrote(tmp_path, capsys, monkeypatch):
+    # Files of the user's that have output names (a video of their own, the
+    # input frames) stay: only the earlier render's list is replaced, and
+    # never this run's inputs.
+    monkeypatch.chdir(tmp_path)
+    for k in range(3):
+        io.write_image(tmp_path / f"frame_{k:05d}.exr", np.full((4, 6, 3), 10.0 + k, np.float32))
+    (tmp_path / "video.mp4").write_bytes(b"the user's")
+    inputs = [f"frame_{k:05d}.exr" for k in range(3)]
+    assert _run(capsys, "render", *inputs, "--out", ".", "--format", "exr")[0] == 0
+    assert (tmp_path / "video.mp4").read_bytes() == b"the user's"
+    # The inputs were overwritten by this render's output frames of the same
+    # names; rendering them again as PNGs must not remove them.
+    assert _run(capsys, "render", *inputs, "--out", ".", "--format", "png")[0] == 0
+    names = {p.name for p in tmp_path.iterdir()}
+    assert set(inputs) <= names and {"frame_00000.png", "video.mp4"} <= names
 
 
 def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
@@ -331,6 +349,13 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert (out / "psychometric.png").stat().st_size > 0 and (out / "pse.png").exists()
     status, err = _run(capsys, "psychometric", "fit", str(trials), "--control", "Control")
     _assert_one_line_error(status, err, "--control", "control, manipulated", "'Control'")
+    # Without a control condition and no --control: fits, and no comparison.
+    trials.write_text(trials.read_text().replace(",control,", ",dark,"))
+    status, err = _run(
+        capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(out)
+    )
+    assert status == 0, err
+    assert list(csv.DictReader(open(out / "group_test.csv"))) == []
 
 
 def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):

@@ -133,6 +133,12 @@ def test_both_forms_of_the_prefix_states_agree():
         )
         assert in_turn.shape == (shape[0] + 1, *shape[1:])
         np.testing.assert_allclose(in_turn, associative, rtol=1e-13)
+    # A float32 start with float64 steps promotes, in both forms.
+    y0, a, b = jnp.float32(0.5), jnp.full(3, 0.5), jnp.ones(3)
+    for form in (k._prefix_states_in_turn, k._prefix_states_associative):
+        assert form(y0, a, b).dtype == jnp.float64
+    law = k.Relaxation(jnp.ones(3), jnp.ones(3))
+    assert k.relaxation_sequence(jnp.float32(0.5), law, np.full(3, 0.1)).dtype == jnp.float64
 
 
 def test_relaxation_sequence_derivatives_equal_those_of_a_loop_of_steps():

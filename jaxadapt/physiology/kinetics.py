@@ -139,12 +139,14 @@ def _prefix_states_associative(y0, a, b):
 
 
 def _prefix_states_in_turn(y0, a, b):
-    """:func:`_prefix_states` by a loop of the steps ``y -> a_k y + b_k``."""
+    """:func:`_prefix_states` by a loop of the steps ``y -> a_k y + b_k``, in
+    the dtype the three promote to (as the associative scan computes)."""
 
     def step(y, ab):
         y = ab[0] * y + ab[1]
         return y, y
 
+    y0, a, b = (jnp.asarray(x, jnp.result_type(y0, a, b)) for x in (y0, a, b))
     return jnp.concatenate([y0[None], jax.lax.scan(step, y0, (a, b))[1]])
 
 
