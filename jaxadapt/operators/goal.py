@@ -86,6 +86,23 @@ def white_fraction(L, fraction=0.2, percentile=99.0, floor=LUMINANCE_FLOOR):
     return jnp.maximum(fraction * white, floor)
 
 
+def frame_centre(shape, dtype=float):
+    """The centre ``(x, y)``, pixels, of frames of shape ``(H, W)``: the default gaze."""
+    H, W = shape
+    return jnp.array([(W - 1) / 2.0, (H - 1) / 2.0], dtype=dtype)
+
+
+def fixation(gaze, fallback, shape):
+    """The fixation for gaze samples ``(..., 2)`` (``x, y`` pixels) on frames
+    of shape ``(H, W)``: each sample clipped to the frame, or ``fallback``
+    where it is not finite (NaN: a blink). The 2015 operator falls back on
+    the fixation before the blink, kept in its state; the 2000 operator,
+    which keeps no gaze, on the frame's centre."""
+    H, W = shape
+    clipped = jnp.clip(gaze, 0.0, jnp.array([W - 1, H - 1], dtype=gaze.dtype))
+    return jnp.where(jnp.all(jnp.isfinite(gaze), axis=-1, keepdims=True), clipped, fallback)
+
+
 def foveal_log_average(L, gaze, pixels_per_degree, floor=LUMINANCE_FLOOR):
     """Log average luminance weighted over a 1-degree fovea around ``gaze``.
 

@@ -86,7 +86,7 @@ import numpy as np
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
 from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt
-from jaxadapt.operators.goal import LUMINANCE_FLOOR, foveal_log_average
+from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_log_average, frame_centre
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import check_value, gaussian_blur
@@ -637,19 +637,6 @@ def blur_maps(params, B, C):
 # -- gaze ---------------------------------------------------------------------
 
 
-def _centre(shape, dtype):
-    H, W = shape
-    return jnp.array([(W - 1) / 2.0, (H - 1) / 2.0], dtype=dtype)
-
-
-def fixation(sample, previous, shape):
-    """The fixation for a gaze ``sample`` (x, y pixels): clipped to the frame,
-    or ``previous`` if the sample is not finite (a blink)."""
-    H, W = shape
-    clipped = jnp.clip(sample, 0.0, jnp.array([W - 1, H - 1], dtype=sample.dtype))
-    return jnp.where(jnp.all(jnp.isfinite(sample)), clipped, previous)
-
-
 def _pixel(gaze):
     """The pixel of a gaze point, rounding halves up (not to even), so that
     equal moves of the gaze give equal moves of the maps."""
@@ -671,7 +658,7 @@ def _default_gaze(gaze, frames, rank):
         return None
     leading = frames.shape[:1] if rank == 4 else ()
     if gaze is None:
-        gaze = jnp.broadcast_to(_centre(frames.shape[-3:-1], frames.dtype), leading + (2,))
+        gaze = jnp.broadcast_to(frame_centre(frames.shape[-3:-1], frames.dtype), leading + (2,))
     return _check_gaze(gaze, leading + (2,), frames.dtype)
 
 
@@ -744,7 +731,7 @@ def _frame(params, state, frame, dt, sample):
 
 def _initial_state(params, frame, gaze, key, adaptation=None):
     shape = frame.shape[:2]
-    gaze = fixation(gaze, _centre(shape, frame.dtype), shape)
+    gaze = fixation(gaze, frame_centre(shape, frame.dtype), shape)
     if adaptation is None:
         A = adaptation_target(params, frame, gaze)
     else:

@@ -549,17 +549,16 @@ def _fixation(frames, gaze):
     foveal goal and the diagnostics are read at, one per frame.
 
     ``gaze`` clipped to the frame; the frame's centre where ``gaze`` is None
-    or a sample is not finite (NaN: a blink). This operator keeps no gaze in
-    its state, so a blink cannot hold the fixation before it:
-    :func:`jaxadapt.scenes.recorded_gaze` holds it in a recorded path
-    (as the 2015 operator holds it in its state).
+    or a sample is not finite (NaN: a blink; :func:`~jaxadapt.operators.goal.fixation`).
+    This operator keeps no gaze in its state, so a blink cannot hold the
+    fixation before it: :func:`jaxadapt.scenes.recorded_gaze` holds it in
+    a recorded path (as the 2015 operator holds it in its state).
     """
-    H, W = frames.shape[-3:-1]
-    centre = jnp.array([W - 1, H - 1], frames.dtype) / 2.0
+    shape = frames.shape[-3:-1]
+    centre = goals.frame_centre(shape, frames.dtype)
     if gaze is None:
         return jnp.broadcast_to(centre, frames.shape[:-3] + (2,))
-    clipped = jnp.clip(gaze, 0.0, 2.0 * centre)
-    return jnp.where(jnp.all(jnp.isfinite(gaze), axis=-1, keepdims=True), clipped, centre)
+    return goals.fixation(gaze, centre, shape)
 
 
 @eqx.filter_jit
