@@ -1,5 +1,7 @@
 """Exact kinetics steps against diffrax, fixed points, and bounds."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -139,6 +141,41 @@ def test_both_forms_of_the_prefix_states_agree():
         assert form(y0, a, b).dtype == jnp.float64
     law = k.Relaxation(jnp.ones(3), jnp.ones(3))
     assert k.relaxation_sequence(jnp.float32(0.5), law, np.full(3, 0.1)).dtype == jnp.float64
+
+
+@pytest.mark.parametrize("size", [(), (3, 2), (40, 40)])
+def test_several_sequences_at_once_equal_each_on_its_own(size):
+    """relaxation_sequences gives each state's relaxation_sequence, and the
+    same derivatives: stacked (scalars and small maps, the 2000 operator's
+    global state) and one by one (maps above SMALL_STATE), with scalar and
+    map goals side by side."""
+    rng = np.random.default_rng(6)
+    assert (4 * math.prod(size) > k.SMALL_STATE) == (size == (40, 40))
+    dt = jnp.asarray(rng.uniform(0.01, 2.0, 19))
+    G = jnp.asarray(10.0 ** rng.uniform(-4, 6, (19, *size)))
+    y0s = [jnp.asarray(0.2), jnp.asarray(rng.uniform(0, 1, size)), jnp.asarray(0.9), 0.5]
+
+    def laws(t0):
+        return [
+            k.neural(G.reshape(19, -1)[:, 0], t0),
+            k.neural(G, 2 * t0),
+            k.bleaching(G, *ROD),
+            k.bleaching(G.reshape(19, -1)[:, 0], *CONE),
+        ]
+
+    def together(t0):
+        return k.relaxation_sequences(y0s, laws(t0), dt)
+
+    def apart(t0):
+        return [k.relaxation_sequence(y, law, dt) for y, law in zip(y0s, laws(t0), strict=True)]
+
+    def like(x, y):  # a state of scalars next to the stacked maps' shape
+        return jnp.broadcast_to(x.reshape(x.shape + (1,) * (y.ndim - x.ndim)), y.shape)
+
+    for y, y_apart in zip(together(0.15), apart(0.15), strict=True):
+        np.testing.assert_allclose(y, like(y_apart, y), rtol=1e-13)
+    for dy, dy_apart in zip(jax.jacfwd(together)(0.15), jax.jacfwd(apart)(0.15), strict=True):
+        np.testing.assert_allclose(dy, like(dy_apart, dy), rtol=1e-12)
 
 
 def test_relaxation_sequence_derivatives_equal_those_of_a_loop_of_steps():

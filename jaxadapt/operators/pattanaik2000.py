@@ -525,10 +525,10 @@ def advance_sequence(params, state, G_rod, G_cone, dt):
     """States a sequence of frames is seen with, and the state after it.
 
     Frame ``k``'s goals ``G_rod[k]``, ``G_cone[k]`` (cd/m2) are held for
-    ``dt[k]`` s. The exact steps over the whole sequence
-    (:func:`~jaxadapt.physiology.kinetics.relaxation_sequence`: on a GPU
-    all frames at once, by their associative form): equal to a loop of
-    :func:`advance` up to rounding.
+    ``dt[k]`` s. The exact steps of the four fields over the whole
+    sequence (:func:`~jaxadapt.physiology.kinetics.relaxation_sequences`:
+    on a GPU all frames at once, by their associative form): equal to a
+    loop of :func:`advance` up to rounding.
 
     Returns
     -------
@@ -536,8 +536,7 @@ def advance_sequence(params, state, G_rod, G_cone, dt):
         Fields of shape ``(T, ...)``: the state at each frame's start; and
         the state after the last frame's ``dt``.
     """
-    laws = relaxations(params, G_rod, G_cone)
-    ys = [kinetics.relaxation_sequence(y, law, dt) for y, law in zip(state, laws, strict=True)]
+    ys = kinetics.relaxation_sequences(state, relaxations(params, G_rod, G_cone), dt)
     return State(*(y[:-1] for y in ys)), State(*(y[-1] for y in ys))
 
 
