@@ -175,6 +175,20 @@ def test_black_darkness_and_1e8_are_finite(dtype):
         assert jnp.all(jnp.isfinite(leaf))
 
 
+def test_tone_map_refuses_what_is_not_floating_point_rgb():
+    # Integer pixels used to give integer arithmetic, a black frame, and no error.
+    obs = op.observer(P, op.static_state(P, jnp.array(100.0), jnp.array(100.0)))
+    for bad, what in (
+        (jnp.array([[10, 50, 200]]), "int"),
+        (jnp.ones((4, 2)), "of shape (4, 2)"),
+    ):
+        with pytest.raises(ValueError, match=r"rgb: expected floating-point .*\(\.\.\., 3\)") as e:
+            op.tone_map(P, obs, bad)
+        assert what in str(e.value)
+    pixel = jnp.array([[10.0, 50.0, 200.0]])
+    assert float(jnp.min(op.tone_map(P, obs, pixel))) > 0
+
+
 def test_tone_map_is_the_colour_ratio_power_and_differentiable_at_black():
     # tone_map evaluates (rgb / L_cone)^e L_d / L_white as one exponential
     # per channel; compare with the formula as written, on pixels that are

@@ -71,6 +71,20 @@ def _frames_dtype(frames, rank, name):
     return frames.dtype
 
 
+def check_rgb(rgb, name, expected="(..., 3)", min_ndim=1):
+    """``rgb`` as an array, after checking that it is floating-point linear
+    RGB of shape ``expected`` (at least ``min_ndim`` axes, 3 channels last);
+    ``ValueError`` naming it otherwise. The per-pixel maps compute in their
+    input's dtype, so integer input would give integer nonsense."""
+    rgb = jnp.asarray(rgb)
+    if rgb.ndim < min_ndim or rgb.shape[-1:] != (3,) or not jnp.issubdtype(rgb.dtype, jnp.floating):
+        raise ValueError(
+            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2, "
+            f"got {rgb.dtype} of shape {rgb.shape}"
+        )
+    return rgb
+
+
 def _bad_frames(frames):
     """Whether any pixel is not finite or negative (see :func:`check_frames`)."""
     ok = [jnp.isfinite(frames[..., c]) & (frames[..., c] >= 0) for c in range(3)]

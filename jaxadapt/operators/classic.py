@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import photopic_luminance
-from jaxadapt.operators.checks import as_dtype
+from jaxadapt.operators.checks import as_dtype, check_rgb
 from jaxadapt.operators.goal import (
     BACKGROUNDS,
     LUMINANCE_FLOOR,
@@ -403,12 +403,7 @@ def tone_map(params, frame, background=None):
     >>> round(float(tone_map(Photographic(a=0.18), frame)[0, 0, 0]), 4)  # a / (1 + a)
     0.1525
     """
-    frame = jnp.asarray(frame)
-    if frame.ndim < 3 or frame.shape[-1] != 3 or not jnp.issubdtype(frame.dtype, jnp.floating):
-        raise ValueError(
-            "frame: expected floating-point linear RGB of shape (..., H, W, 3) in cd/m2, "
-            f"got {frame.dtype} of shape {frame.shape}"
-        )
+    frame = check_rgb(frame, "frame", "(..., H, W, 3)", min_ndim=3)
     frame = eqx.error_if(frame, ~jnp.all(jnp.isfinite(frame)), "frame: expected finite values")
     params = as_dtype(params, frame.dtype)
     L = jnp.maximum(photopic_luminance(frame), LUMINANCE_FLOOR)

@@ -46,7 +46,7 @@ from jaxadapt.color import (
     scotopic_luminance,
 )
 from jaxadapt.operators import goal as goals
-from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt
+from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt, check_rgb
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
     forward_difference_slope,
@@ -423,6 +423,7 @@ def tone_map(params, obs, rgb):
     channels: XLA's CPU backend evaluates the exponentials after such a
     select unvectorised, four times slower.
     """
+    rgb = check_rgb(rgb, "rgb")
     e, s, black = pixel_terms(params, obs, scotopic_luminance(rgb), photopic_luminance(rgb))
     return display_value(e[..., None], s[..., None], black[..., None], rgb)
 
