@@ -104,8 +104,9 @@ Data
 ----
 ``data`` has the model's output shape, with any leading axes a batch of
 datasets fitted at once (one ``vmap``: one fit per participant, per
-condition). Measurements that are not finite (NaN, inf) or have weight 0 are
-left out; a warning says how many, and each fit reports ``n_masked``.
+condition). Measurements that are not finite (NaN, inf) are left out, and a
+warning says how many; so are those of weight 0, silently (that is how a
+measurement is left out on purpose). Each fit reports both in ``n_masked``.
 
 References
 ----------
@@ -130,6 +131,10 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
+
+WEIGHTS_MESSAGE = (
+    "weights: expected finite, non-negative weights (1/sd^2; 0 leaves a measurement out)"
+)
 
 #: Default bounds of a fitted field: positive.
 POSITIVE = (0.0, math.inf)
@@ -365,9 +370,12 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
         trial = self.norm(jax.tree.map(jnp.subtract, new_state.y_eval, new_y))
         tolerance = self.atol + self.rtol * self.norm(new_y)
         stalled = ~accepted & ~state.first_step & (trial <= tolerance)
-        new_state = eqx.tree_at(
-            lambda s: s.terminate, new_state, new_state.terminate | small | stalled
-        )
+        # optimistix's own test after the first step (an evaluation at the
+        # start, no move) compares the residuals with the zeros its state
+        # starts from: it stops at the start whenever every residual is
+        # below ``atol``, as on data in small units.
+        cauchy = new_state.terminate & ~state.first_step
+        new_state = eqx.tree_at(lambda s: s.terminate, new_state, cauchy | small | stalled)
         return new_y, new_state, aux
 
 
@@ -465,6 +473,8 @@ def _spec(params, names, bounds):
     spec = []
     for name in names:
         b = bounds.get(name, POSITIVE)
+        if b is not None and not (isinstance(b, tuple | list) and len(b) == 2):
+            raise ValueError(f"bounds[{name!r}]: expected (low, high) or None, got {b!r}")
         low, high = (-math.inf, math.inf) if b is None else (float(b[0]), float(b[1]))
         if not low < high or math.isnan(low) or math.isnan(high):
             raise ValueError(f"bounds[{name!r}]: expected (low, high) with low < high, got {b!r}")
@@ -515,7 +525,7 @@ def _and_itself(x):
 class _Problem(eqx.Module):
     """What every dataset of one call shares, and the fit of one dataset.
 
-    The methods take one dataset's observations ``obs = (y, w, mask)``
+    The methods take one dataset's observations ``obs = (y, w, mask, c)``
     (:meth:`observations`) as an argument rather than closing over them, so
     that a solver lane can pass from one dataset to the next. Under
     ``eqx.filter_jit`` the arrays (``params``, ``args``, ``absolute_sigma``)
@@ -534,10 +544,23 @@ class _Problem(eqx.Module):
     dtype: Any
 
     def observations(self, data, weights):
-        """``(y, w, mask)``: the measurements and weights, 0 where left out."""
+        """``(y, w, mask, c)``: the measurements and weights, 0 where left
+        out, and the root mean square ``c`` of the weighted residuals at the
+        start (1 if that is 0 or not finite).
+
+        The least-squares solver works on the residuals over ``c``, so that
+        the units of the data and weights do not matter: optimistix's
+        Levenberg-Marquardt takes no step at all once its damping exceeds
+        ``1/eps`` (it caps the step size at ``eps``), and the damping
+        starts at ``1e-3 max diag(J' J)`` (:class:`NielsenDamping`), which
+        data in units of 1e9 (float64) or 1e5 (float32) put above it.
+        """
         mask = jnp.isfinite(data) & (weights > 0)
         w = jnp.where(mask, weights, 0.0).astype(self.dtype)
-        return jnp.where(mask, data, 0.0), w, mask
+        y = jnp.where(mask, data, 0.0)
+        start = jnp.where(mask, (self.predict(self.free()[0]) - y) * jnp.sqrt(w), 0.0)
+        c = jnp.sqrt(jnp.sum(start**2) / jnp.maximum(jnp.sum(mask), 1))
+        return y, w, mask, jnp.where(jnp.isfinite(c) & (c > 0), c, 1.0)
 
     def free(self):
         """The start ``u0``, one vector in the order of ``names`` (raveled, so
@@ -562,11 +585,12 @@ class _Problem(eqx.Module):
         return self.prediction(self.free()[1](u))
 
     def weigh(self, df, obs):
-        """``sqrt(w) df``, raveled, 0 where masked: the weighted residuals
-        ``r = sqrt(w) (f - y)`` of the prediction ``f = y + df``, and (being
-        linear in ``df``) their change for a change ``df`` of ``f``."""
-        _, w, mask = obs
-        return jnp.where(mask, df * jnp.sqrt(w), 0.0).ravel()
+        """``sqrt(w) df / c``, raveled, 0 where masked: the weighted residuals
+        ``r = sqrt(w) (f - y) / c`` of the prediction ``f = y + df``, in
+        units of their start (:meth:`observations`), and (being linear in
+        ``df``) their change for a change ``df`` of ``f``."""
+        _, w, mask, c = obs
+        return jnp.where(mask, df * (jnp.sqrt(w) / c), 0.0).ravel()
 
     def jacobian(self, u):
         """``(F, f)``: the Jacobian ``F = df/du`` of the prediction (one row per
@@ -628,7 +652,7 @@ class _Problem(eqx.Module):
         return residuals(u, obs)
 
     def total_nll(self, u, obs):
-        y, w, mask = obs
+        y, w, mask, _ = obs
         f = self.predict(u)
         terms = self.nll(f, jnp.where(mask, y, jax.lax.stop_gradient(f)))
         return jnp.sum(jnp.where(mask, w * terms, 0.0))
@@ -652,11 +676,12 @@ class _Problem(eqx.Module):
         """The :class:`Fit` of one dataset at the solver's final ``u``, with
         ``linear = (J, r, f)`` there if the solver kept them
         (:func:`_solver_linearisation`)."""
-        y, w, mask = obs
+        y, w, mask, c = obs
         u0, unravel = self.free()
         k = u0.size
         if self.nll is None:
             J, r, prediction = self.linearised(u, obs)[:3] if linear is None else linear
+            J, r = J * c, r * c  # the solver's units back to those of the data
             loss = 0.5 * jnp.sum(r**2)
             info = J.T @ J
             dof = jnp.sum(mask) - k
@@ -735,8 +760,8 @@ def _fit_one(problem, data, weights):
 @eqx.filter_jit
 def _fit(problem, data, weights):
     """Every dataset (leading axis) at once: one vmapped solve."""
-    bad = jnp.any(weights < 0) | jnp.any(jnp.isnan(weights))
-    weights = eqx.error_if(weights, bad, "weights: expected non-negative weights (1/sd^2)")
+    bad = ~jnp.all(jnp.isfinite(weights) & (weights >= 0))
+    weights = eqx.error_if(weights, bad, WEIGHTS_MESSAGE)
     return jax.vmap(lambda d, w: _fit_one(problem, d, w))(data, weights)
 
 
@@ -1005,7 +1030,7 @@ def fit(
         A name that is not a numeric field (the message lists the valid
         ones), bounds that do not contain the start, data whose trailing
         shape is not the model's output shape, weights that do not
-        broadcast or are negative, an unknown ``jac``.
+        broadcast or are negative or not finite, an unknown ``jac``.
 
     Examples
     --------
@@ -1031,7 +1056,9 @@ def fit(
             f"model: expected a function returning one array, got {type(out).__name__}"
         )
     data = jnp.asarray(data)
-    data = data.astype(jnp.result_type(data.dtype, float))
+    # In the precision the model computes in (float32 data of a float64
+    # model are fitted in float64), at least the default float's.
+    data = data.astype(jnp.result_type(data.dtype, out.dtype, float))
     event = out.shape
     if data.ndim < len(event) or data.shape[data.ndim - len(event) :] != event:
         raise ValueError(
@@ -1048,8 +1075,8 @@ def fit(
     traced = _under_transformation(data, weights, params, args)
     if not traced:
         w = np.asarray(weights)
-        if np.any(w < 0) or np.any(np.isnan(w)):
-            raise ValueError("weights: expected non-negative weights (1/sd^2)")
+        if not np.all(np.isfinite(w) & (w >= 0)):
+            raise ValueError(WEIGHTS_MESSAGE)
         missing = int(np.sum(~np.isfinite(np.asarray(data))))
         if missing:
             warnings.warn(

@@ -290,8 +290,12 @@ def test_bad_input_is_named():
         fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=np.ones(3))
     with pytest.raises(ValueError, match="max_steps: expected at least 1"):
         fitting.fit(log_threshold, START, NAMES, data, args=ARGS, max_steps=0)
-    with pytest.raises(ValueError, match="weights: expected non-negative"):
-        fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=-np.ones(44))
+    for bad in (-np.ones(44), np.full(44, np.inf), np.full(44, np.nan)):
+        with pytest.raises(ValueError, match="weights: expected finite, non-negative"):
+            fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=bad)
+    for bad in (5, (0, 5, 7)):
+        with pytest.raises(ValueError, match=r"bounds\['t0_rod'\]: expected \(low, high\) or None"):
+            fitting.fit(log_threshold, START, "t0_rod", data, args=ARGS, bounds={"t0_rod": bad})
     with pytest.raises(ValueError, match="jac: expected 'fwd' or 'bwd'"):
         fitting.fit(log_threshold, START, NAMES, data, args=ARGS, jac="central")
     with pytest.raises(ValueError, match="params: expected a parameter module"):
@@ -382,6 +386,46 @@ def test_least_squares_matches_scipy_curve_fit(decays):
         assert np.all(np.abs(fwd.estimate[name] - f.estimate[name]) < 1e-3 * f.se[name])
         np.testing.assert_allclose(bwd.estimate[name], fwd.estimate[name], rtol=1e-7)
         np.testing.assert_allclose(bwd.se[name], fwd.se[name], rtol=1e-6)
+
+
+@pytest.mark.parametrize("dtype, scales", [("float64", (1e-9, 1e9)), ("float32", (1e-4, 1e5))])
+def test_the_units_of_data_and_weights_do_not_change_the_fit(decays, dtype, scales):
+    # The solver works on residuals in units of those at the start. Before,
+    # data in small units stopped at the start (optimistix's first test
+    # compared the residuals with zeros, below atol) and data in large units
+    # never moved (the damping, 1e-3 max diag(J'J), above optimistix's
+    # 1/eps cap); both reported converged=True. (Positive fields, fitted in
+    # log units; an unbounded field is fitted in its own units.)
+    data = np.asarray(decays[0][0], dtype)
+
+    def fit(s, **kw):
+        start = Decay(*(jnp.asarray(v, dtype) for v in (s, 1.0, 0.1 * s)))
+        return fitting.fit(decay, start, ABC, s * data, args=jnp.asarray(T, dtype), **kw)
+
+    with jax.enable_x64(dtype == "float64"):
+        reference = fit(1.0)
+        fits = [fit(s) for s in scales] + [fit(1.0, weights=w) for w in (1e-30, 1e30)]
+    assert bool(reference.converged)
+    rtol = 1e-9 if dtype == "float64" else 2e-5
+    for f, s in zip(fits, (*scales, 1.0, 1.0), strict=True):
+        assert bool(f.converged) and int(f.steps) == int(reference.steps)
+        for name, unit in zip(ABC, (s, 1.0, s), strict=True):
+            np.testing.assert_allclose(
+                float(f.estimate[name]) / unit, float(reference.estimate[name]), rtol=rtol
+            )
+            np.testing.assert_allclose(
+                float(f.se[name]) / unit, float(reference.se[name]), rtol=100 * rtol
+            )
+
+
+def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
+    # jax_enable_x64 on (as in the experiments), data loaded as float32: the
+    # model computes in float64, and so does the fit (lineax used to fail
+    # with "pytree does not have a consistent input_structure").
+    data, f64 = decays
+    f = fitting.fit(decay, Decay(), ABC, data[0].astype(np.float32), args=T, bounds=UNBOUNDED_C)
+    assert f.estimate["a"].dtype == jnp.float64 and bool(f.converged)
+    np.testing.assert_allclose(float(f.estimate["b"]), float(f64.estimate["b"][0]), rtol=1e-6)
 
 
 def test_vmapped_fits_equal_looped_fits(decays):
