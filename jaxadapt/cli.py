@@ -39,9 +39,11 @@ BACKGROUND_SCALE = 8.0
 RENDER_OUTPUTS = re.compile(
     r"frame_\d{5}\.(png|exr|pfm)|video\.mp4|contact_sheet\.png|adaptation\.png|diagnostics\.csv"
 )
-#: A render's list, in its folder, of the files it wrote: the next render
-#: into the folder removes those of them it does not write again.
-MANIFEST = ".jaxadapt-render"
+#: Names of the files ``jaxadapt psychometric fit`` writes.
+FIT_OUTPUTS = re.compile(r"fits\.csv|group_test\.csv|psychometric\.png|pse\.png")
+#: A command's list, in its folder, of the files it wrote: the next run of
+#: the command into the folder removes those of them it does not write again.
+MANIFESTS = {RENDER_OUTPUTS: ".jaxadapt-render", FIT_OUTPUTS: ".jaxadapt-psychometric-fit"}
 
 
 class UsageError(ValueError):
@@ -222,8 +224,9 @@ def build_parser():
         description="Fit P(x) = Phi((x - PSE) / sigma) by maximum likelihood (a probit GLM, "
         "as MATLAB's glmfit in the paper) to every (participant, condition) of a trial "
         "table, with bootstrap intervals for the PSE; compare the conditions' PSEs with the "
-        "Wilcoxon rank-sum test. Writes fits.csv, group_test.csv, psychometric.png (Fig. 13) "
-        "and pse.png (Fig. 14) into --out.",
+        "Wilcoxon rank-sum test. Writes fits.csv, group_test.csv (when the table has the "
+        "control condition and another), psychometric.png (Fig. 13) and pse.png (Fig. 14) "
+        "into --out.",
     )
     fit.add_argument(
         "trials",
@@ -307,9 +310,9 @@ GROUP_TEST_COLUMNS = (
 def _staged(out, replaces=None, keep=()):
     """Yield a staging folder inside ``out``; move its files into ``out`` on success.
 
-    With ``replaces`` (a compiled pattern of output names), the names this
-    run wrote are listed in ``out/MANIFEST``, and on success the files that
-    an earlier run listed there, that match ``replaces`` and that this run
+    With ``replaces`` (a command's pattern of output names), the names this
+    run wrote are listed in its manifest in ``out`` (:data:`MANIFESTS`), and
+    on success the files that an earlier run listed there, that match ``replaces`` and that this run
     did not write are removed, so that the folder holds one run's outputs;
     nothing else is, and never a path in ``keep`` (this run's inputs). On
     any error nothing reaches ``out`` (earlier results stay as they were)
@@ -337,9 +340,10 @@ def _staged(out, replaces=None, keep=()):
         written = sorted(path.name for path in staging.iterdir())
         earlier = []
         if replaces is not None:
+            manifest = MANIFESTS[replaces]
             with contextlib.suppress(OSError, UnicodeDecodeError):
-                earlier = (out / MANIFEST).read_text().splitlines()
-            (staging / MANIFEST).write_text("".join(f"{name}\n" for name in written))
+                earlier = (out / manifest).read_text().splitlines()
+            (staging / manifest).write_text("".join(f"{name}\n" for name in written))
         for name in sorted(path.name for path in staging.iterdir()):
             (staging / name).replace(out / name)
         keep = {Path(p).resolve() for p in keep}
@@ -513,6 +517,7 @@ def psychometric_fit(args, console):
     import jax.numpy as jnp
 
     from jaxadapt import figures
+    from jaxadapt.psychophysics import fit as psyfit
     from jaxadapt.psychophysics import stats, trials
 
     if args.resamples < 0:
@@ -552,12 +557,33 @@ def psychometric_fit(args, console):
                 "n_control": int(c.test.n_y),
             }
         )
-    with _staged(out) as staging:
+    # Data that place no PSE (every response the same, or one level): said.
+    # (Under separation the PSE lies between two levels; the slope is the
+    # prior's, and the flags say so.)
+    no_pse = (np.asarray(table.flags) & (psyfit.ALL_SAME | psyfit.SINGLE_LEVEL)) > 0
+    for i in np.flatnonzero(no_pse):
+        why = ", ".join(psyfit.flag_names(int(table.flags[i])))
+        console.print(
+            f"warning: participant {table.participant[i]}, condition {table.condition[i]}: "
+            f"the data place no PSE ({why}); the PSE {table.pse[i]:+.4g} and its interval in "
+            "fits.csv come from the fit's weak prior, and it enters the group test as such"
+        )
+    written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
+    if not rows:
+        written.remove("group_test.csv")
+        console.print(
+            f"no group test: {args.trials} has no condition {control!r} to compare with "
+            f"(conditions: {', '.join(map(str, conditions))}); name one with --control"
+            if control not in conditions
+            else f"no group test: {args.trials} has no condition besides {control!r}"
+        )
+    with _staged(out, replaces=FIT_OUTPUTS, keep=[args.trials]) as staging:
         trials.write_fits(staging / "fits.csv", table)
-        with open(staging / "group_test.csv", "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=GROUP_TEST_COLUMNS)
-            writer.writeheader()
-            writer.writerows(rows)
+        if rows:
+            with open(staging / "group_test.csv", "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=GROUP_TEST_COLUMNS)
+                writer.writeheader()
+                writer.writerows(rows)
         figures.plot_psychometric(staging / "psychometric.png", groups, table)
         figures.plot_pse(staging / "pse.png", table)
     for row in rows:
@@ -566,7 +592,7 @@ def psychometric_fit(args, console):
             f"{row['median_control']:+.3f} log units, rank-sum p = {row['p']:.3g} "
             f"(n = {row['n']}, {row['n_control']})"
         )
-    console.print(f"wrote fits.csv, group_test.csv, psychometric.png, pse.png to {out}/")
+    console.print(f"wrote {', '.join(written)} to {out}/")
 
 
 def _weights(items, cues):

@@ -355,7 +355,23 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
         capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(out)
     )
     assert status == 0, err
-    assert list(csv.DictReader(open(out / "group_test.csv"))) == []
+    assert not (out / "group_test.csv").exists()  # the last run's, removed
+    said = " ".join(err.split())  # the console wraps its lines
+    assert "no group test" in said and "dark, manipulated" in said and "--control" in said
+    # A participant whose responses are all "yes" has no PSE of its own: said.
+    rows = trials.read_text().splitlines()
+    rows = [
+        r if not r.startswith("p0,dark,") else ",".join(r.split(",")[:3] + ["20", "20"])
+        for r in rows
+    ]
+    trials.write_text("\n".join(rows) + "\n")
+    status, err = _run(
+        capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(out)
+    )
+    assert status == 0, err
+    said = " ".join(err.split())
+    assert "warning: participant p0, condition dark: the data place no PSE (all_same" in said
+    assert said.count("warning") == 1, said
 
 
 def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
@@ -363,6 +379,12 @@ def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
     trials.write_text("participant,condition,level,response\np1,control,0.1,1\np1,control,x,0\n")
     status, err = _run(capsys, "psychometric", "fit", str(trials), "--out", str(tmp_path / "o"))
     _assert_one_line_error(status, err, "trials.csv", "3")
+    assert not (tmp_path / "o").exists()
+    trials.write_text("level,level,n_yes,n_total\n0,0,1,1\n")
+    status, err = _run(capsys, "psychometric", "fit", str(trials), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "trials.csv", "'level' more than once")
+    status, err = _run(capsys, "psychometric", "fit", str(tmp_path), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "is a folder")
     assert not (tmp_path / "o").exists()
 
 

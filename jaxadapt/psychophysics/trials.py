@@ -127,6 +127,9 @@ class FitTable(NamedTuple):
 def _header(path, header):
     """Index of each used column; which table format the header announces."""
     columns = [name.strip().lower() for name in header]
+    repeated = [c for c in dict.fromkeys(columns) if c and columns.count(c) > 1]
+    if repeated:
+        raise ValueError(f"{path}: expected each column once, got '{repeated[0]}' more than once")
     if "response" in columns and "n_yes" in columns:
         raise ValueError(
             f"{path}: expected either a 'response' column or 'n_yes' and 'n_total' "
@@ -193,12 +196,15 @@ def read_trials(path):
     FileNotFoundError
         The file does not exist.
     ValueError
-        Empty file, missing columns, rows with the wrong number of cells,
-        blank names, non-numeric or non-finite numbers, responses other than
-        0 or 1, negative or fractional counts, ``n_yes > n_total``; the
-        message names the file, the row and the column.
+        A folder, an empty file, missing or repeated columns, rows with the
+        wrong number of cells, blank names, non-numeric or non-finite
+        numbers, responses other than 0 or 1, negative or fractional counts,
+        ``n_yes > n_total``; the message names the file, the row and the
+        column.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder (expected a CSV trial table)")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file (expected a CSV trial table)")
     with open(path, newline="", encoding="utf-8-sig") as file:
