@@ -312,12 +312,12 @@ def _staged(out, replaces=None, keep=()):
 
     With ``replaces`` (a command's pattern of output names), the names this
     run wrote are listed in its manifest in ``out`` (:data:`MANIFESTS`), and
-    on success the files that an earlier run listed there, that match ``replaces`` and that this run
-    did not write are removed, so that the folder holds one run's outputs;
-    nothing else is, and never a path in ``keep`` (this run's inputs). On
-    any error nothing reaches ``out`` (earlier results stay as they were)
-    and the folders made for it are removed. The staging folder is removed
-    either way.
+    on success the files that an earlier run listed there, that match
+    ``replaces`` and that this run did not write are removed, so that the
+    folder holds one run's outputs; nothing else is, and never a path in
+    ``keep`` (this run's inputs). On any error nothing reaches ``out``
+    (earlier results stay as they were) and the folders made for it are
+    removed. The staging folder is removed either way.
     """
     made = next((p for p in [*reversed(out.parents), out] if not p.exists()), None)
 

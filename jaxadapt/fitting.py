@@ -132,6 +132,7 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
+#: What a weight must be, said for bad ones on the host and under ``jit``.
 WEIGHTS_MESSAGE = (
     "weights: expected finite, non-negative weights (1/sd^2; 0 leaves a measurement out)"
 )
@@ -546,7 +547,7 @@ class _Problem(eqx.Module):
     def observations(self, data, weights):
         """``(y, w, mask, c)``: the measurements and weights, 0 where left
         out, and the root mean square ``c`` of the weighted residuals at the
-        start (1 if that is 0 or not finite).
+        start (1 if that is 0 or not finite, and for a likelihood).
 
         The least-squares solver works on the residuals over ``c``, so that
         the units of the data and weights do not matter: optimistix's
@@ -558,6 +559,8 @@ class _Problem(eqx.Module):
         mask = jnp.isfinite(data) & (weights > 0)
         w = jnp.where(mask, weights, 0.0).astype(self.dtype)
         y = jnp.where(mask, data, 0.0)
+        if self.nll is not None:  # the likelihood has no residuals to scale
+            return y, w, mask, jnp.ones((), self.dtype)
         start = jnp.where(mask, (self.predict(self.free()[0]) - y) * jnp.sqrt(w), 0.0)
         c = jnp.sqrt(jnp.sum(start**2) / jnp.maximum(jnp.sum(mask), 1))
         return y, w, mask, jnp.where(jnp.isfinite(c) & (c > 0), c, 1.0)
