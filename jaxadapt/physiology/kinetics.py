@@ -127,7 +127,7 @@ def relaxation_sequences(y0s, relaxations, dt):
     to 330 us with four loops and 64 to 117 us with the stacked one.
     Stacking copies the states' steps: with 60 frames of 1920x1080 maps (a
     Gaussian background) the four loops peaked at 17.5 GB, and the stacked
-    form ran out of this machine's 24 GB in one run of two.
+    form ran out of this machine's 24 GB in one run of three.
 
     Parameters
     ----------
