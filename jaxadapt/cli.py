@@ -315,10 +315,19 @@ def _staged(out, replaces=None, keep=()):
     on success the files that an earlier run listed there, that match
     ``replaces`` and that this run did not write are removed, so that the
     folder holds one run's outputs; nothing else is, and never a path in
-    ``keep`` (this run's inputs). On any error nothing reaches ``out``
-    (earlier results stay as they were) and the folders made for it are
-    removed. The staging folder is removed either way.
+    ``keep`` (this run's inputs). An input in ``out`` with the name of an
+    output is refused before anything is done: the run would write over it.
+    On any error nothing reaches ``out`` (earlier results stay as they were)
+    and the folders made for it are removed. The staging folder is removed
+    either way.
     """
+    keep = {Path(p).resolve() for p in keep}
+    for path in sorted(keep):
+        if replaces is not None and path.parent == out.resolve() and replaces.fullmatch(path.name):
+            raise UsageError(
+                f"{path}: an input in --out with the name of an output of this command, "
+                "which would write over it; choose another --out"
+            )
     made = next((p for p in [*reversed(out.parents), out] if not p.exists()), None)
 
     def unmake():
@@ -346,7 +355,6 @@ def _staged(out, replaces=None, keep=()):
             (staging / manifest).write_text("".join(f"{name}\n" for name in written))
         for name in sorted(path.name for path in staging.iterdir()):
             (staging / name).replace(out / name)
-        keep = {Path(p).resolve() for p in keep}
         for name in set(earlier) - set(written):
             path = out / name
             if replaces.fullmatch(name) and path.is_file() and path.resolve() not in keep:
@@ -520,8 +528,10 @@ def psychometric_fit(args, console):
     from jaxadapt.psychophysics import fit as psyfit
     from jaxadapt.psychophysics import stats, trials
 
-    if args.resamples < 0:
-        raise UsageError(f"--resamples: expected a number >= 0, got {args.resamples}")
+    if args.resamples < 0 or args.resamples == 1:
+        raise UsageError(
+            f"--resamples: expected 0 (a Wald interval) or at least 2, got {args.resamples}"
+        )
     trial_table = trials.read_trials(args.trials)
     conditions = list(dict.fromkeys(trial_table.condition))
     if args.control is not None and args.control not in conditions:

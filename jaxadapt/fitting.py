@@ -34,9 +34,9 @@ Objectives
 ----------
 *Least squares* (the default, ``nll=None``): minimise ``1/2 sum w (f - y)^2``
 over the measurements ``y`` with weights ``w`` (``1/sd^2``), with
-:class:`LevenbergMarquardt` (optimistix's, with Nielsen's update of the
-damping, which also stops by MINPACK's ``ftol`` and ``xtol`` tests; or any
-optimistix least-squares solver passed as ``solver``,
+:class:`LevenbergMarquardt` (optimistix's, with each parameter damped in
+its own units and stopped by MINPACK's tests, and Nielsen's update of the
+damping; or any optimistix least-squares solver passed as ``solver``,
 e.g. ``optimistix.GaussNewton``). The residuals are handed to the solver
 with their Jacobian computed in one pass per step, so that a step costs one
 Jacobian of the model and not a model replay per product with it: forward
@@ -100,6 +100,21 @@ two that only enter as a product). Its standard error is then ``inf``, its
 off-diagonal covariances 0, and ``converged`` is False; every other number
 stays finite. No output is NaN.
 
+A solver's tests say that its steps have become small, not that it is at a
+minimum: far from the data a step can be small because the model is far
+from linear, or because the sum of squares cannot resolve a better point.
+``Fit.newton_step`` measures what is left: the length, in standard errors,
+of a full Gauss-Newton (Newton) step from the estimate, ``sqrt(g' C g)``
+(with ``C`` in the units of the free values and, for least squares, the
+residual variance at least ``eps mean(w y^2)``, so that a fit to rounding is
+not judged by rounding). ``converged`` also requires it to be at most
+:data:`NEWTON_STEP` (0.1): the estimate is within a tenth of a standard
+error of the minimum the linearisation there points to. A likelihood
+whose maximum lies at infinity (responses all the same, or perfectly
+separated, in a psychometric model) can be flat to rounding at the point
+the solver reaches, with a short Newton step: there only the standard
+errors' size tells (:mod:`jaxadapt.psychophysics.fit` flags such data).
+
 Data
 ----
 ``data`` has the model's output shape, with any leading axes a batch of
@@ -121,6 +136,7 @@ Nocedal and Wright (2006), *Numerical Optimization*, ch. 6 (BFGS) and 10
 import dataclasses
 import math
 import warnings
+from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -141,6 +157,9 @@ WEIGHTS_MESSAGE = (
 POSITIVE = (0.0, math.inf)
 #: Default iteration cap of the optimiser.
 MAX_STEPS = 256
+#: Largest full (Gauss-)Newton step from the estimate, in standard errors,
+#: of a fit called converged (``Fit.newton_step``).
+NEWTON_STEP = 0.1
 #: Solver lanes of a batch (see "Batches" in the module notes): a batch of at
 #: most this many datasets is fitted in one vmapped solve, a larger one
 #: through a queue of this many lanes. On a 2-core CPU, 64 lanes fitted the
@@ -158,11 +177,11 @@ class Fit(eqx.Module):
     params : Params
         The parameter module at the estimate (fitted fields replaced, the
         others as given; under a batch every field gains the batch axes).
-    estimate : dict
-        Fitted values by name, in natural units.
-    se : dict
-        Standard errors by name (delta method, natural units); ``inf`` for a
-        parameter the data do not identify.
+    estimate : OrderedDict
+        Fitted values by name, in natural units, in the order of ``names``.
+    se : OrderedDict
+        Standard errors by name (delta method, natural units), in the order
+        of ``names``; ``inf`` for a parameter the data do not identify.
     cov : array, (..., k, k)
         Covariance of the ``k`` fitted elements (``names`` order, raveled).
     prediction : array
@@ -175,9 +194,17 @@ class Fit(eqx.Module):
         Measurements left out, per dataset.
     loss : array
         ``1/2 sum w r^2`` (least squares) or ``sum w nll`` at the estimate.
+    newton_step : array
+        Length of a full Gauss-Newton (least squares) or Newton (likelihood)
+        step from the estimate, in standard errors: ``sqrt(g' C g)``, with
+        ``g`` the gradient of the loss and ``C`` the covariance of the free
+        values (the identified ones). At a minimum it is 0; a solve that
+        stopped short of one (a start far from the data, a loss flat to
+        rounding before the minimum) leaves it large.
     converged : array of bool
-        The solver met its tolerance within ``max_steps`` and every
-        parameter is identified (finite standard error).
+        The solver met its tolerance within ``max_steps``, every parameter is
+        identified (finite standard error) and ``newton_step`` is at most
+        :data:`NEWTON_STEP`.
     solved : array of bool
         The solver met its tolerance, identified or not.
     steps : array of int
@@ -195,6 +222,7 @@ class Fit(eqx.Module):
     mask: jax.Array
     n_masked: jax.Array
     loss: jax.Array
+    newton_step: jax.Array
     converged: jax.Array
     solved: jax.Array
     steps: jax.Array
@@ -270,26 +298,24 @@ class _DampingState(eqx.Module):
 
 
 class NielsenDamping(optx.AbstractSearch):
-    """The damping of Levenberg-Marquardt by Nielsen's rule, scaled to the problem.
+    """The damping of Levenberg-Marquardt by Nielsen's rule.
 
-    The first evaluation sets ``lambda_0 = tau max_j (J' J)_jj`` (Madsen,
-    Nielsen and Tingleff 2004, §3.2, with their default ``tau = 1e-3``; 1
-    where ``J`` is zero);
-    every later one updates it by :func:`nielsen_update` from the gain
-    ratio of the step. The search of ``optimistix.LevenbergMarquardt``
-    (``ClassicalTrustRegion``) instead starts from ``lambda = 1`` whatever
-    the scale of ``J' J`` and lowers it only after a step whose gain ratio
-    exceeds 0.99: a fit that a Gauss-Newton step would nearly finish takes
-    several damped steps first, and a fit in a curved valley (gain ratios
-    of 0.5 to 0.9) keeps its damping and creeps. On the 1,000 fits of
-    ``benchmarks/bench_fitting.py`` this rule took 6.8 steps a fit on
-    average instead of 8.8 (median 6 instead of 8, longest 34 instead of
-    45), and its estimates came closer to MINPACK's (at most 1.1 standard
-    errors apart instead of 20).
+    The first evaluation sets ``lambda_0 = tau`` (Madsen, Nielsen and
+    Tingleff 2004, §3.2, ``tau max_j (J' J)_jj`` with their default ``tau =
+    1e-3``, here in the units of :class:`ScaledDampedNewtonDescent`, in
+    which every ``(J' J)_jj`` of the first Jacobian is 1); every later one
+    updates it by :func:`nielsen_update` from the gain ratio of the step.
+    The search of ``optimistix.LevenbergMarquardt`` (``ClassicalTrustRegion``)
+    instead starts from ``lambda = 1`` and lowers it only after a step whose
+    gain ratio exceeds 0.99: a fit that a Gauss-Newton step would nearly
+    finish takes several damped steps first, and a fit in a curved valley
+    (gain ratios of 0.5 to 0.9) keeps its damping and creeps. On the 1,000
+    fits of ``benchmarks/bench_fitting.py`` this rule took 6.8 steps a fit
+    on average instead of 8.8 (median 6 instead of 8, longest 34 instead
+    of 45), and its estimates came closer to MINPACK's (at most 1.1
+    standard errors apart instead of 20).
 
-    Used by :class:`LevenbergMarquardt` with least-squares functions
-    (residuals and Jacobian); the step size it returns is ``1 / lambda``,
-    as ``optimistix.DampedNewtonDescent`` takes it.
+    The step size it returns is ``1 / lambda``, as optimistix's descents take it.
     """
 
     tau: float = 1e-3
@@ -304,35 +330,104 @@ class NielsenDamping(optx.AbstractSearch):
         positive = predicted > 0
         rho = jnp.where(positive, actual / jnp.where(positive, predicted, 1.0), 0.0)
         accept, step_size, nu = nielsen_update(rho, state.step_size, state.nu)
-        J = f_eval_info.jac.as_matrix()
-        lambda_0 = self.tau * jnp.max(jnp.sum(J * J, axis=0))
-        first = jnp.where(lambda_0 > 0, 1.0 / jnp.where(lambda_0 > 0, lambda_0, 1.0), 1.0)
-        step_size = jnp.where(first_step, first, step_size).astype(state.step_size.dtype)
+        step_size = jnp.where(first_step, 1.0 / self.tau, step_size).astype(state.step_size.dtype)
         nu = jnp.where(first_step, 2.0, nu).astype(state.nu.dtype)
         return step_size, accept | first_step, optx.RESULTS.successful, _DampingState(step_size, nu)
 
 
-class LevenbergMarquardt(optx.AbstractGaussNewton):
-    """``optimistix.LevenbergMarquardt`` with Nielsen's damping
-    (:class:`NielsenDamping`), that also stops by MINPACK's ``ftol`` test.
+class _ScaledDescentState(eqx.Module):
+    f_info: optx.FunctionInfo.ResidualJac
+    scale: jax.Array  # D_j, the largest norm column j of J has had
 
-    optimistix stops when both the parameters and the residuals change by
-    less than ``atol + rtol |.|``. With noisy data that can take hundreds of
-    steps when a parameter is weakly determined or the Gauss-Newton step
-    overshoots (the solver then creeps or oscillates by steps far below the
-    standard errors), and
-    under ``vmap`` every fit of the batch waits for the slowest. This solver
-    also stops after an accepted step whose actual and predicted relative
-    reductions of the sum of squares are both at most ``ftol`` (Moré 1978,
-    MINPACK's ``lmder``; SciPy's ``least_squares(method="lm")``): with
-    ``m - k`` residual degrees of freedom, such a step moves the parameters
-    by at most about ``sqrt(ftol (m - k))`` standard errors. It also stops
-    after a rejected step when the damping has made the next trial step
-    smaller than optimistix's tolerance on the parameters (``atol + rtol
-    |y|``, in the solver's norm): at the rounding floor of the sum of squares
-    (in float32, the last digits of a converged fit) no step lowers it, every
-    step is rejected and the damping grows without end. This is MINPACK's
-    ``xtol`` test, there on the trust region's radius.
+
+class ScaledDampedNewtonDescent(optx.AbstractDescent):
+    """The Levenberg-Marquardt step with each parameter damped in its own units.
+
+    The step ``p`` minimises ``|r + J p|^2 + lambda |D p|^2``, that is
+    ``(J' J + lambda D^2) p = -J' r``, with ``D_j`` the largest norm that
+    column ``j`` of ``J`` has had so far (1 while every column is 0): MINPACK's
+    scaling (``lmder``, ``mode = 1``; Moré 1978, §6). A column shorter than
+    ``sqrt(eps)`` of the longest (a parameter the residuals do not feel, as in
+    the identifiability test of :func:`_information_inverse`) counts as long
+    as the longest: scaled to unit length, its rounding noise would drive
+    the parameter. A parameter in units
+    ``c`` times larger has a column, and a ``D_j``, ``c`` times smaller, so
+    the steps, and the fit, do not depend on the units of the parameters.
+    ``optimistix.DampedNewtonDescent`` damps every parameter by the same
+    ``lambda``: one whose column is much shorter than the longest barely
+    moves until ``lambda`` has fallen below its scale (a straight line
+    ``a + b x`` with ``x`` up to 1,000 took 15 steps instead of 5, and a
+    fit of data in units of ``1e8`` from a start of 1 stopped, its ``a``
+    still at 15, 3,000 times the least sum of squares above it).
+
+    ``p`` is found as the least-squares solution of ``[J; sqrt(lambda) D] p
+    = [-r; 0]`` by QR, as optimistix solves its damped step. ``y`` is one
+    vector (as :func:`fit` gives it) or a pytree, raveled.
+    """
+
+    def init(self, y, f_info_struct):
+        flat, _ = ravel_pytree(y)
+        f_info = jax.tree.map(
+            lambda s: jnp.zeros(s.shape, s.dtype) if isinstance(s, jax.ShapeDtypeStruct) else s,
+            f_info_struct,
+            is_leaf=lambda s: isinstance(s, jax.ShapeDtypeStruct),
+        )
+        return _ScaledDescentState(f_info, jnp.zeros_like(flat))
+
+    def query(self, y, f_info, state):
+        del y
+        norms = jnp.linalg.norm(f_info.jac.as_matrix(), axis=0)
+        top = jnp.max(norms)
+        sensitive = norms > jnp.sqrt(jnp.finfo(norms.dtype).eps) * top
+        scale = jnp.maximum(state.scale, jnp.where(sensitive, norms, top))
+        return _ScaledDescentState(f_info, scale)
+
+    def step(self, step_size, state):
+        J = state.f_info.jac.as_matrix()
+        r, _ = ravel_pytree(state.f_info.residual)
+        D = jnp.where(state.scale > 0, state.scale, 1.0)
+        moves = step_size > 0  # lambda finite (it grows without bound on a stalled fit)
+        sqrt_lambda = 1.0 / jnp.sqrt(jnp.where(moves, step_size, 1.0))
+        damped = jnp.concatenate([J, jnp.diag(sqrt_lambda * D)])
+        target = jnp.concatenate([r, jnp.zeros_like(D)])
+        sol = lx.linear_solve(lx.MatrixLinearOperator(damped), target, lx.QR(), throw=False)
+        structure = state.f_info.jac.in_structure()
+        _, unravel = ravel_pytree(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), structure))
+        return unravel(jnp.where(moves, -sol.value, 0.0)), optx.RESULTS.promote(sol.result)
+
+
+class LevenbergMarquardt(optx.AbstractGaussNewton):
+    """Levenberg-Marquardt as MINPACK's ``lmder`` scales and stops it, on
+    optimistix's Gauss-Newton loop, with Nielsen's damping.
+
+    The step damps each parameter in its own units
+    (:class:`ScaledDampedNewtonDescent`), the damping follows Nielsen's rule
+    (:class:`NielsenDamping`), and the solve stops by the first of three tests:
+
+    * optimistix's: the parameters and the residuals both changed by less
+      than ``atol + rtol |.|`` (after the first step: before it, optimistix
+      compares the residuals with the zeros its state starts from, and would
+      stop at the start whenever every residual is below ``atol``);
+    * MINPACK's ``ftol`` test (Moré 1978; SciPy's
+      ``least_squares(method="lm")``): an accepted step whose actual and
+      predicted relative reductions of the sum of squares are both at most
+      ``ftol``, the actual one at most twice the predicted. With ``m - k``
+      residual degrees of freedom such a step moves the parameters by at most
+      about ``sqrt(ftol (m - k))`` standard errors. Without it, noisy data
+      can take hundreds of steps when a parameter is weakly determined (the
+      solver creeps by steps far below the standard errors), and under
+      ``vmap`` every fit of a batch waits for the slowest. The ratio's bound
+      (MINPACK's) keeps it from stopping a fit whose steps are small only
+      because the model is far from linear there: far from the data, in the
+      log of a parameter, a step does much more than its linearisation says;
+    * a rejected step whose predicted relative reduction is at most ``eps``:
+      at the rounding floor of the sum of squares (in float32, the last
+      digits of a converged fit) no step lowers it, every step is rejected
+      and the damping grows without end (MINPACK's ``xtol`` test, there on
+      the trust region's radius).
+
+    Whether the fit stopped at a minimum is :func:`fit`'s test
+    (``Fit.newton_step``), not the solver's.
 
     Parameters
     ----------
@@ -340,18 +435,17 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
         Tolerances of optimistix's test.
     ftol : float
         Relative reduction of the sum of squares (``0`` disables the test).
-    search : optimistix search
-        The damping's update; default :class:`NielsenDamping`.
-    descent, norm, verbose
-        As in ``optimistix.LevenbergMarquardt`` (damped Newton step by QR,
-        max norm, silent).
+    search, descent : optimistix search and descent
+        Default :class:`NielsenDamping` and :class:`ScaledDampedNewtonDescent`.
+    norm, verbose
+        As in ``optimistix.LevenbergMarquardt`` (max norm, silent).
     """
 
     rtol: float
     atol: float
     ftol: float
     norm: Callable = optx.max_norm
-    descent: optx.DampedNewtonDescent = optx.DampedNewtonDescent(linear_solver=lx.QR())
+    descent: optx.AbstractDescent = ScaledDampedNewtonDescent()
     search: optx.AbstractSearch = NielsenDamping()
     verbose: Callable = _quiet
 
@@ -361,20 +455,17 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
         scale = jnp.where(before > 0, before, 1.0)
         actual, predicted = actual / scale, predicted / scale
         accepted = new_state.num_accepted_steps > state.num_accepted_steps
+        later = ~state.first_step & (before > 0)
         small = (
             accepted
-            & ~state.first_step
-            & (before > 0)
+            & later
             & (actual <= self.ftol)
             & (predicted <= self.ftol)
+            & (actual <= 2.0 * predicted)
         )
-        trial = self.norm(jax.tree.map(jnp.subtract, new_state.y_eval, new_y))
-        tolerance = self.atol + self.rtol * self.norm(new_y)
-        stalled = ~accepted & ~state.first_step & (trial <= tolerance)
-        # optimistix's own test after the first step (an evaluation at the
-        # start, no move) compares the residuals with the zeros its state
-        # starts from: it stops at the start whenever every residual is
-        # below ``atol``, as on data in small units.
+        _, _, trial = _reductions(new_y, new_state.y_eval, new_state.f_info, new_state.f_info)
+        eps = jnp.finfo(before.dtype).eps
+        stalled = ~accepted & later & (trial <= eps * scale)
         cauchy = new_state.terminate & ~state.first_step
         new_state = eqx.tree_at(lambda s: s.terminate, new_state, cauchy | small | stalled)
         return new_y, new_state, aux
@@ -459,6 +550,13 @@ def _spec(params, names, bounds):
     if not names:
         raise ValueError(f"names: expected at least one of {valid}, got none")
     unknown = [n for n in names if n not in valid]
+    integer = [n for n in unknown if eqx.is_array_like(getattr(params, n, None))]
+    if integer:
+        raise ValueError(
+            f"names: {', '.join(map(repr, integer))} of {type(params).__name__} "
+            f"{'holds' if len(integer) == 1 else 'hold'} integers; a fitted field must "
+            f"hold floating-point values (1.0, not 1)"
+        )
     if unknown:
         raise ValueError(
             f"names: {', '.join(map(repr, unknown))} "
@@ -476,7 +574,10 @@ def _spec(params, names, bounds):
         b = bounds.get(name, POSITIVE)
         if b is not None and not (isinstance(b, tuple | list) and len(b) == 2):
             raise ValueError(f"bounds[{name!r}]: expected (low, high) or None, got {b!r}")
-        low, high = (-math.inf, math.inf) if b is None else (float(b[0]), float(b[1]))
+        try:
+            low, high = (-math.inf, math.inf) if b is None else (float(b[0]), float(b[1]))
+        except (TypeError, ValueError):
+            raise ValueError(f"bounds[{name!r}]: expected (low, high) or None, got {b!r}") from None
         if not low < high or math.isnan(low) or math.isnan(high):
             raise ValueError(f"bounds[{name!r}]: expected (low, high) with low < high, got {b!r}")
         value = getattr(params, name)
@@ -550,11 +651,10 @@ class _Problem(eqx.Module):
         start (1 if that is 0 or not finite, and for a likelihood).
 
         The least-squares solver works on the residuals over ``c``, so that
-        the units of the data and weights do not matter: optimistix's
-        Levenberg-Marquardt takes no step at all once its damping exceeds
-        ``1/eps`` (it caps the step size at ``eps``), and the damping
-        starts at ``1e-3 max diag(J' J)`` (:class:`NielsenDamping`), which
-        data in units of 1e9 (float64) or 1e5 (float32) put above it.
+        the units of the data and weights do not matter to optimistix's test
+        (:class:`LevenbergMarquardt`), which compares the residuals' change
+        with ``atol + rtol |r|``: on data in units of ``1e-9`` every change
+        would pass it, and the parameters' change alone would decide.
         """
         mask = jnp.isfinite(data) & (weights > 0)
         w = jnp.where(mask, weights, 0.0).astype(self.dtype)
@@ -577,7 +677,11 @@ class _Problem(eqx.Module):
         )
 
     def natural(self, fields):
-        return {f.name: _to_natural(v, f) for v, f in zip(fields, self.spec, strict=True)}
+        """The fitted fields' natural values by name, in the order of ``names``
+        (an ``OrderedDict``: JAX keeps its order, and sorts a ``dict``'s keys)."""
+        return OrderedDict(
+            (f.name, _to_natural(v, f)) for v, f in zip(fields, self.spec, strict=True)
+        )
 
     def prediction(self, fields):
         """The model with the fitted fields at the free values ``fields``."""
@@ -683,20 +787,29 @@ class _Problem(eqx.Module):
         u0, unravel = self.free()
         k = u0.size
         if self.nll is None:
+            # J and r in the solver's units (residuals over c), in which the
+            # numbers are near 1 whatever the units of the data and weights.
             J, r, prediction = self.linearised(u, obs)[:3] if linear is None else linear
-            J, r = J * c, r * c  # the solver's units back to those of the data
-            loss = 0.5 * jnp.sum(r**2)
-            info = J.T @ J
+            info, gradient = J.T @ J, J.T @ r
+            loss = 0.5 * jnp.sum((r * c) ** 2)
             dof = jnp.sum(mask) - k
-            variance = jnp.where(dof > 0, 2.0 * loss / jnp.where(dof > 0, dof, 1), jnp.inf)
-            scale = jnp.where(self.absolute_sigma, 1.0, variance)
+            per_dof = jnp.where(dof > 0, dof, 1)
+            variance = jnp.where(dof > 0, jnp.sum(r**2) / per_dof, jnp.inf)
+            scale = jnp.where(self.absolute_sigma, 1.0 / c**2, variance)
+            # The Newton step of a fit to rounding (noiseless data) is rounding
+            # over rounding: it is measured against a variance of at least
+            # ``eps mean(w y^2)`` (residuals of half the digits of the data).
+            floor = jnp.finfo(self.dtype).eps * jnp.sum(self.weigh(y, obs) ** 2) / per_dof
+            step_scale = jnp.where(self.absolute_sigma, scale, jnp.maximum(variance, floor))
         else:
             hessian = jax.hessian if self.jac == "fwd" else lambda f: jax.jacrev(jax.grad(f))
             info = hessian(lambda u: self.total_nll(u, obs))(u)
-            loss = self.total_nll(u, obs)
+            loss, gradient = jax.value_and_grad(lambda u: self.total_nll(u, obs))(u)
             prediction = self.predict(u)
-            scale = 1.0
+            scale = step_scale = 1.0
         cov_u, identified = _information_inverse(info)
+        reduction = jnp.maximum(gradient @ cov_u @ gradient, 0.0)  # twice the step's, of the loss
+        newton_step = jnp.sqrt(jnp.where(step_scale > 0, reduction / step_scale, 0.0))
         D, _ = ravel_pytree(
             tuple(_derivative(v, f) for v, f in zip(unravel(u), self.spec, strict=True))
         )
@@ -709,14 +822,15 @@ class _Problem(eqx.Module):
         return Fit(
             params=_replace(self.params, self.spec, estimate),
             estimate=estimate,
-            se=dict(zip(estimate, unravel(se.astype(self.dtype)), strict=True)),
+            se=OrderedDict(zip(estimate, unravel(se.astype(self.dtype)), strict=True)),
             cov=cov.astype(self.dtype),
             prediction=prediction,
             residuals=jnp.where(mask, prediction - y, 0.0),
             mask=mask,
             n_masked=jnp.sum(~mask).astype(jnp.int32),
             loss=loss,
-            converged=solved & jnp.all(ok) & finite,
+            newton_step=newton_step.astype(self.dtype),
+            converged=solved & jnp.all(ok) & finite & (newton_step <= NEWTON_STEP),
             solved=solved,
             steps=jnp.asarray(steps, jnp.int32),
             names=tuple(f.name for f in self.spec),
@@ -1053,6 +1167,11 @@ def fit(
         raise ValueError(f"max_steps: expected at least 1, got {max_steps}")
     if jac not in ("fwd", "bwd"):
         raise ValueError(f"jac: expected 'fwd' or 'bwd', got {jac!r}")
+    if nll is not None and not callable(nll):
+        raise ValueError(
+            f"nll: expected a function nll(prediction, data) giving the negative "
+            f"log-likelihood of each measurement, or None for least squares, got {nll!r}"
+        )
     out = _output_struct(model, params, args)
     if not isinstance(out, jax.ShapeDtypeStruct):
         raise ValueError(

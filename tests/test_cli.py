@@ -165,22 +165,29 @@ def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
     assert names == [".jaxadapt-render", *files]
 
 
-def test_a_render_removes_only_what_an_earlier_render_wrote(tmp_path, capsys, monkeypatch):
-    # Files of the user's that have output names (a video of their own, the
-    # input frames) stay: only the earlier render's list is replaced, and
-    # never this run's inputs.
+def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write(
+    tmp_path, capsys, monkeypatch
+):
+    # Input frames named as the render's output frames, in --out: refused
+    # before anything is written (they used to be overwritten by the display
+    # frames). Renamed, they render into the same folder, and a file of the
+    # user's with an output name (their own video) stays.
     monkeypatch.chdir(tmp_path)
     for k in range(3):
         io.write_image(tmp_path / f"frame_{k:05d}.exr", np.full((4, 6, 3), 10.0 + k, np.float32))
     (tmp_path / "video.mp4").write_bytes(b"the user's")
     inputs = [f"frame_{k:05d}.exr" for k in range(3)]
-    assert _run(capsys, "render", *inputs, "--out", ".", "--format", "exr")[0] == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    status, err = _run(capsys, "render", *inputs, "--out", ".", "--format", "exr")
+    _assert_one_line_error(status, err, "frame_00000.exr", "would write over it")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    renamed = [f"scene_{k}.exr" for k in range(3)]
+    for old, new in zip(inputs, renamed, strict=True):
+        (tmp_path / old).rename(tmp_path / new)
+    assert _run(capsys, "render", *renamed, "--out", ".", "--format", "exr")[0] == 0
     assert (tmp_path / "video.mp4").read_bytes() == b"the user's"
-    # The inputs were overwritten by this render's output frames of the same
-    # names; rendering them again as PNGs must not remove them.
-    assert _run(capsys, "render", *inputs, "--out", ".", "--format", "png")[0] == 0
-    names = {p.name for p in tmp_path.iterdir()}
-    assert set(inputs) <= names and {"frame_00000.png", "video.mp4"} <= names
+    for name in renamed:
+        assert (tmp_path / name).read_bytes() == before[inputs[renamed.index(name)]]
 
 
 def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
@@ -385,6 +392,12 @@ def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
     _assert_one_line_error(status, err, "trials.csv", "'level' more than once")
     status, err = _run(capsys, "psychometric", "fit", str(tmp_path), "--out", str(tmp_path / "o"))
     _assert_one_line_error(status, err, "is a folder")
+    assert not (tmp_path / "o").exists()
+    trials.write_text("level,n_yes,n_total\n0,1,2\n0.1,2,2\n")
+    for resamples in ("-1", "1"):
+        args = ("psychometric", "fit", str(trials), "--resamples", resamples)
+        status, err = _run(capsys, *args, "--out", str(tmp_path / "o"))
+        _assert_one_line_error(status, err, "--resamples: expected 0", f"got {resamples}")
     assert not (tmp_path / "o").exists()
 
 

@@ -293,7 +293,7 @@ def test_bad_input_is_named():
     for bad in (-np.ones(44), np.full(44, np.inf), np.full(44, np.nan)):
         with pytest.raises(ValueError, match="weights: expected finite, non-negative"):
             fitting.fit(log_threshold, START, NAMES, data, args=ARGS, weights=bad)
-    for bad in (5, (0, 5, 7)):
+    for bad in (5, (0, 5, 7), ("x", 1)):
         with pytest.raises(ValueError, match=r"bounds\['t0_rod'\]: expected \(low, high\) or None"):
             fitting.fit(log_threshold, START, "t0_rod", data, args=ARGS, bounds={"t0_rod": bad})
     with pytest.raises(ValueError, match="jac: expected 'fwd' or 'bwd'"):
@@ -302,6 +302,15 @@ def test_bad_input_is_named():
         fitting.fit(log_threshold, {"t0_rod": 0.1}, "t0_rod", data, args=ARGS)
     with pytest.raises(ValueError, match="model: expected a function returning one array"):
         fitting.fit(lambda p, a: (p.t0_rod, p.t0_cone), START, "t0_rod", data)
+    with pytest.raises(ValueError, match="nll: expected a function nll.*got 'gauss'"):
+        fitting.fit(log_threshold, START, NAMES, data, args=ARGS, nll="gauss")
+
+    class Counts(eqx.Module):
+        rate: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
+        n: jax.Array = eqx.field(default=3, converter=jnp.asarray)
+
+    with pytest.raises(ValueError, match=r"names: 'n' of Counts holds integers.*1\.0, not 1"):
+        fitting.fit(lambda p, x: p.rate * p.n * x, Counts(), ("rate", "n"), np.ones(3), args=1.0)
 
 
 # -- the mechanism on a small model -------------------------------------------
@@ -407,8 +416,12 @@ def test_the_units_of_data_and_weights_do_not_change_the_fit(decays, dtype, scal
         fits = [fit(s) for s in scales] + [fit(1.0, weights=w) for w in (1e-30, 1e30)]
     assert bool(reference.converged)
     rtol = 1e-9 if dtype == "float64" else 2e-5
+    # In float32 the last steps are taken at the rounding floor of the sum
+    # of squares, where the data's rounding in other units decides whether
+    # one more step is accepted: 10 to 12 steps here.
+    slack = 0 if dtype == "float64" else 2
     for f, s in zip(fits, (*scales, 1.0, 1.0), strict=True):
-        assert bool(f.converged) and int(f.steps) == int(reference.steps)
+        assert bool(f.converged) and abs(int(f.steps) - int(reference.steps)) <= slack
         for name, unit in zip(ABC, (s, 1.0, s), strict=True):
             np.testing.assert_allclose(
                 float(f.estimate[name]) / unit, float(reference.estimate[name]), rtol=rtol
@@ -416,6 +429,73 @@ def test_the_units_of_data_and_weights_do_not_change_the_fit(decays, dtype, scal
             np.testing.assert_allclose(
                 float(f.se[name]) / unit, float(reference.se[name]), rtol=100 * rtol
             )
+
+
+class Line(eqx.Module):
+    """``y = a + b x``."""
+
+    a: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
+    b: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
+
+
+def line(params, x):
+    return params.a + params.b * x
+
+
+def test_the_units_of_an_unbounded_parameter_do_not_change_the_fit():
+    # Each parameter is damped by its own Jacobian column (MINPACK's
+    # scaling): x in [0, 1] or in [0, 1e6] (b in units a million times
+    # smaller) gives the same steps and the same line. Damped alike (the
+    # same lambda for both), b's long column left a creeping: 15 steps for
+    # x up to 1,000.
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.0, 1.0, 30)
+    y = 2.0 + 0.5 * x + 0.01 * rng.standard_normal(x.size)
+    with jax.enable_x64(True):
+        kw = dict(bounds={"a": None, "b": None})
+        unit = fitting.fit(line, Line(0.0, 0.0), ("a", "b"), y, args=jnp.asarray(x), **kw)
+        mega = fitting.fit(line, Line(0.0, 0.0), ("a", "b"), y, args=jnp.asarray(1e6 * x), **kw)
+    b, a = np.polyfit(x, y, 1)
+    assert bool(unit.converged) and bool(mega.converged)
+    assert int(mega.steps) == int(unit.steps) <= 6
+    np.testing.assert_allclose([float(unit.estimate["a"]), float(unit.estimate["b"])], [a, b])
+    np.testing.assert_allclose(float(mega.estimate["a"]), a, rtol=1e-9)
+    np.testing.assert_allclose(float(mega.estimate["b"]), b * 1e-6, rtol=1e-9)
+    np.testing.assert_allclose(float(mega.se["b"]), float(unit.se["b"]) * 1e-6, rtol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_converged_means_at_the_minimum_even_from_a_start_far_from_the_data(dtype):
+    # Data in units of 1e8, positive parameters (fitted in log units)
+    # started at 1. In float64 the fit walks the eight decades to the
+    # least-squares line. (Before MINPACK's scaling it stopped with a = 15,
+    # 3,000 times the least sum of squares, by the ftol test, and said
+    # converged.) In float32 no step the sum of squares can resolve is
+    # small enough to be accepted, and the solve stalls at the start:
+    # solved, but a Gauss-Newton step from there is many standard errors
+    # long, so not converged. Either way, converged is true exactly when
+    # the fit is at the minimum.
+    x = np.linspace(0.0, 5.0, 20)
+    y = 1e8 * (2.0 + 0.3 * x) * (1.0 + 0.01 * np.sin(np.arange(20.0)))
+    b, a = np.polyfit(x, y, 1)
+    least = 0.5 * np.sum((y - a - b * x) ** 2)
+    with jax.enable_x64(dtype == "float64"):
+        f = fitting.fit(line, Line(), ("a", "b"), y.astype(dtype), args=jnp.asarray(x, dtype))
+    at_minimum = float(f.loss) < least * (1 + 1e-3)
+    assert bool(f.converged) == at_minimum == (dtype == "float64")
+    assert (float(f.newton_step) <= fitting.NEWTON_STEP) == at_minimum
+    if at_minimum:
+        np.testing.assert_allclose([float(f.estimate["a"]), float(f.estimate["b"])], [a, b])
+
+
+def test_estimates_and_standard_errors_follow_the_order_of_names(decays):
+    data, _ = decays
+    f = fitting.fit(decay, Decay(), ("c", "a", "b"), data[0], args=T, bounds=UNBOUNDED_C)
+    assert list(f.estimate) == list(f.se) == ["c", "a", "b"]
+    np.testing.assert_allclose(
+        np.sqrt(np.diagonal(np.asarray(f.cov))), [float(v) for v in f.se.values()]
+    )
+    assert float(f.newton_step) < 1e-3  # at the minimum
 
 
 def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
@@ -444,11 +524,11 @@ def test_vmapped_fits_equal_looped_fits(decays):
 
 @pytest.fixture(scope="module")
 def uneven():
-    """Six decays whose fits take from 6 to 123 steps, and their fit by one
+    """Six decays whose fits take from 6 to 124 steps, and their fit by one
     vmapped solve (six datasets fit in the default lanes). Rows: two badly
-    conditioned ones (a weak decay, 14 steps, and a slow one, 16 steps; a
+    conditioned ones (a weak decay, 12 steps, and a slow one, 15 steps; a
     and b correlated at 0.96 and 0.99), three noisy ones as in ``decays``,
-    and a flat one, whose b the data do not determine (123 steps)."""
+    and a flat one, whose b the data do not determine (124 steps)."""
     t = np.asarray(T)
     rng = np.random.default_rng(1)
     weak = 0.05 * np.exp(-t / 1.5) + 0.3 + SD * rng.standard_normal(t.size)
@@ -477,12 +557,12 @@ def _count_calls(monkeypatch, name):
 def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
     # Two lanes for six datasets: each lane takes the next dataset when its
     # fit stops, and the host hands the queue over two datasets at a time,
-    # so that the weak decay's solve (14 steps) is stopped at a round's end
+    # so that the weak decay's solve (12 steps) is stopped at a round's end
     # and carried on with its whole solver state. Every number equals the
     # uninterrupted vmapped solve's, step counts included.
     data, plain = uneven
     steps = np.asarray(plain.steps)
-    np.testing.assert_array_equal(steps, [14, 16, 7, 7, 6, 123])
+    np.testing.assert_array_equal(steps, [12, 15, 8, 7, 6, 124])
     monkeypatch.setattr(fitting, "LANES", 2)
     traces = _count_calls(monkeypatch, "_fit_one")
     queued = fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
@@ -506,7 +586,7 @@ def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeyp
     data, _ = uneven
     monkeypatch.setattr(fitting, "LANES", 2)
     f = fitting.fit(decay, Decay(), ABC, data[::-1], args=T, bounds=UNBOUNDED_C)
-    np.testing.assert_array_equal(f.steps, [123, 6, 7, 7, 16, 14])
+    np.testing.assert_array_equal(f.steps, [124, 6, 7, 8, 15, 12])
     np.testing.assert_array_equal(f.converged, [False, True, True, True, True, True])
     assert bool(f.solved[0]) and np.isinf(f.se["a"][0]) and np.isinf(f.se["b"][0])
     for leaf in jax.tree.leaves(f):
@@ -525,7 +605,7 @@ def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeyp
     monkeypatch.setattr(fitting._Lane, "__init__", counting)
     g = fitting.fit(decay, Decay(), ABC, data[1:4], args=T, bounds=UNBOUNDED_C)
     assert traces == []
-    np.testing.assert_array_equal(g.steps, [16, 7, 7])
+    np.testing.assert_array_equal(g.steps, [15, 8, 7])
 
 
 def test_a_queue_traces_its_round_once(uneven, monkeypatch):

@@ -175,6 +175,22 @@ def test_black_darkness_and_1e8_are_finite(dtype):
         assert jnp.all(jnp.isfinite(leaf))
 
 
+@pytest.mark.parametrize("background", ["gaussian", "box", "bilateral", "arithmetic"])
+def test_a_local_background_after_total_darkness_is_finite_and_whites_out(background):
+    # Two black frames, then a ramp from 1e-2 to 1e4 cd/m2. A blur of black
+    # is 0; unfloored, the state went to 0, sigma to 0/0 (NaN in the
+    # diagnostics) and the ramp was erased to a flat grey. Floored as the
+    # global goal is, the dark-adapted viewer sees it white, as globally.
+    ramp = jnp.logspace(-2.0, 4.0, 24)[None, :, None] * jnp.ones((16, 24, 3))
+    frames = jnp.zeros((3, 16, 24, 3)).at[2].set(ramp)
+    globally, _ = op.run(P, frames, 1 / 30)
+    out, diag = op.run(op.Params(background=background), frames, 1 / 30)
+    for leaf in jax.tree.leaves(diag):
+        assert jnp.all(jnp.isfinite(leaf))
+    assert float(jnp.min(globally[2])) > 0.999
+    np.testing.assert_allclose(out, globally, atol=1e-5)
+
+
 def test_tone_map_refuses_what_is_not_floating_point_rgb():
     # Integer pixels used to give integer arithmetic, a black frame, and no error.
     obs = op.observer(P, op.static_state(P, jnp.array(100.0), jnp.array(100.0)))
@@ -284,6 +300,7 @@ def test_diagnostic_curve_is_monotone_and_matches_pixels():
             r"frames: expected .*\(T, H, W, 3\).* got float64 of shape \(4, 4, 3\)",
         ),
         (jnp.ones((2, 4, 4, 4)), r"frames: expected .* of shape \(2, 4, 4, 4\)"),
+        (jnp.ones((0, 4, 4, 3)), r"frames: expected .*no axis of length 0.* \(0, 4, 4, 3\)"),
     ],
 )
 def test_wrong_shapes_are_named(frames, match):
@@ -364,6 +381,22 @@ def test_local_run_equals_a_loop_of_step():
         state, frame_out = op.step(params, state, frames[k], 0.04)
         np.testing.assert_allclose(frame_out, out[k], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(state.B_rod, diag.final_state.B_rod, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("t0_cone", -0.08), ("tau_rod", jnp.nan), ("n", -1.0), ("c_cone", jnp.inf)],
+)
+def test_a_parameter_out_of_its_range_is_named(field, value):
+    # A negative t0 drove the adaptation state below zero and a NaN one made
+    # it NaN, while the display frames stayed finite: nothing said so.
+    with pytest.raises(ValueError, match=f"{field}: expected a positive, finite number"):
+        op.Params(**{field: value})
+    with pytest.raises(ValueError, match=r"goal_fraction: expected in \(0, 1\]"):
+        op.Params(goal_fraction=0.0)
+    # Traced values are not checked (a Params built under vmap or jit).
+    t0 = jax.vmap(lambda t: op.Params(t0_cone=t).t0_cone)(jnp.array([-1.0, 0.1]))
+    np.testing.assert_allclose(t0, [-1.0, 0.1])
 
 
 def test_unknown_background_and_bad_scale_are_named():

@@ -15,8 +15,8 @@ import jax.numpy as jnp
 def check_frames(frames, rank, name="frames"):
     """Check frames of linear RGB in cd/m2 and return their value guard.
 
-    The shape must be ``(T, H, W, 3)`` (rank 4) or ``(H, W, 3)`` (rank 3)
-    and the dtype floating point (``ValueError`` at once otherwise); the
+    The shape must be ``(T, H, W, 3)`` (rank 4) or ``(H, W, 3)`` (rank 3),
+    no axis of length 0, and the dtype floating point (``ValueError`` at once otherwise); the
     values must be finite and non-negative. That value check is returned as
     ``guard``, an exact zero scalar of the frames' dtype that raises when it
     is computed on bad frames: add it to the operator's scalar state, which
@@ -61,12 +61,13 @@ def _frames_dtype(frames, rank, name):
     if (
         frames.ndim != rank
         or frames.shape[-1] != 3
+        or 0 in frames.shape
         or not jnp.issubdtype(frames.dtype, jnp.floating)
     ):
         expected = "(T, H, W, 3)" if rank == 4 else "(H, W, 3)"
         raise ValueError(
-            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2, "
-            f"got {frames.dtype} of shape {frames.shape}"
+            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2 "
+            f"(no axis of length 0), got {frames.dtype} of shape {frames.shape}"
         )
     return frames.dtype
 

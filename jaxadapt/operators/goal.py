@@ -451,8 +451,12 @@ def estimate_background(L, name, scale):
 
     ``scale`` (pixels) is passed to the local estimators; the global ones
     (``"global"``, ``"arithmetic"``) have no size and are broadcast to the
-    image's shape.
+    image's shape. Every estimate is floored at :data:`LUMINANCE_FLOOR`, as
+    the log averages are: a blur of a black region is 0, and an adaptation
+    state of 0 has no semi-saturation (``sigma(0)`` is 0/0 in Hunt's ``F_L``),
+    which erased every frame after total darkness until the state had left
+    0 (a local Gaussian background, the flash scene).
     """
     estimator = BACKGROUNDS[name]
     I_b = estimator(L) if name in ("global", "arithmetic") else estimator(L, scale=scale)
-    return jnp.broadcast_to(I_b, L.shape)
+    return jnp.broadcast_to(jnp.maximum(I_b, LUMINANCE_FLOOR), L.shape)

@@ -56,6 +56,7 @@ from jaxadapt.physiology.response import (
     sigma_cone,
     sigma_rod,
 )
+from jaxadapt.spatial import check_value
 
 #: Scene luminances (log10 cd/m2) at which the scene-to-display curve of the
 #: diagnostics is sampled: 1e-6 to 1e8 cd/m2, ten samples a decade.
@@ -140,6 +141,36 @@ class Params(eqx.Module):
                 "background_scale: expected a positive size in pixels, "
                 f"got {self.background_scale!r}"
             )
+        for name in POSITIVE_FIELDS:
+            check_value(name, getattr(self, name), _positive, "a positive, finite number")
+        for name in ("display_B_cone", "goal_fraction"):
+            check_value(name, getattr(self, name), lambda v: (v > 0) & (v <= 1), "in (0, 1]")
+        check_value(
+            "white_percentile", self.white_percentile, lambda v: (v > 0) & (v <= 100), "in (0, 100]"
+        )
+
+
+#: The fields of :class:`Params` that must be positive and finite (time and
+#: bleaching constants, exponent, reference factors, display adaptation,
+#: resolution): a negative ``t0`` drove the adaptation state below zero, a
+#: NaN one made it NaN, both silently.
+POSITIVE_FIELDS = (
+    "n",
+    "t0_rod",
+    "t0_cone",
+    "tau_rod",
+    "tau_cone",
+    "c_rod",
+    "c_cone",
+    "white_factor",
+    "black_ratio",
+    "display_adaptation",
+    "pixels_per_degree",
+)
+
+
+def _positive(v):
+    return np.isfinite(v) & (v > 0)
 
 
 class State(NamedTuple):
