@@ -10,7 +10,8 @@ factors, 20 %) and Gaussian noise of 0.05 log units.
 
 * jaxadapt: :func:`jaxadapt.fitting.fit` of the four constants (in log
   units) for all observers in one call: Levenberg-Marquardt (Nielsen's
-  damping, scaled to ``J' J`` at the start) with exact forward-mode
+  damping, each parameter's scaled by its Jacobian column as MINPACK
+  scales it) with exact forward-mode
   Jacobians through ``run`` (the model linearised once a step, each
   constant's tangent pushed through that linearisation alone), in a
   queue of ``fitting.LANES`` (64) vmapped solver lanes: a lane whose fit

@@ -432,6 +432,12 @@ def _operator(args, source):
         from jaxadapt.operators import pattanaik2000 as op
 
         goal = args.adaptation_goal or source.goal
+        if args.pixels_per_degree is not None and (goal, args.background) != ("foveal", "global"):
+            raise UsageError(
+                "--pixels-per-degree: applies to the foveal adaptation goal "
+                f"(--adaptation-goal foveal, global background), not goal {goal} "
+                f"with a {args.background} background"
+            )
         params = op.Params(
             goal=goal,
             pixels_per_degree=ppd,

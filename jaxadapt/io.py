@@ -7,6 +7,7 @@ file.
 
 import contextlib
 import csv
+import math
 import os
 import tempfile
 import warnings
@@ -28,7 +29,8 @@ def read_hdr(path):
     path : str or Path
         An OpenEXR, Radiance HDR, PFM or floating-point TIFF file.
         Single-channel images are taken as grey; channels beyond the third
-        (alpha) are dropped.
+        (alpha) are dropped. A Radiance file's pixels are divided by its
+        exposure (:func:`radiance_exposure`).
 
     Returns
     -------
@@ -70,9 +72,41 @@ def read_hdr(path):
     finally:
         image.close()
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
+    if is_rgbe:
+        pixels = pixels / np.float32(radiance_exposure(path))
     if pixels.shape[-1] < 3:
         pixels = np.repeat(pixels[..., :1], 3, axis=-1)
     return pixels[..., :3]
+
+
+def radiance_exposure(path):
+    """The product of a Radiance HDR file's ``EXPOSURE`` header lines (1 without any).
+
+    A Radiance picture's pixel values are the radiance times every exposure
+    applied to it since it was made (``pfilt``, ``pcomb``), each recorded as
+    an ``EXPOSURE=`` line; the radiance is the pixel value over their
+    product (Ward, *The RADIANCE Lighting Simulation and Rendering System*,
+    file formats). OpenImageIO reports only the last line
+    (``hdr:exposure``), and does not apply it.
+    """
+    exposure = 1.0
+    with open(path, "rb") as f:
+        for line in iter(f.readline, b""):
+            line = line.strip()
+            if not line:  # the header ends with an empty line
+                break
+            if line.startswith(b"EXPOSURE="):
+                try:
+                    value = float(line[len(b"EXPOSURE=") :])
+                except ValueError:
+                    value = math.nan
+                if not (math.isfinite(value) and value > 0):
+                    raise ValueError(
+                        f"{path}: expected a positive number in the header line "
+                        f"{line.decode(errors='replace')!r}"
+                    )
+                exposure *= value
+    return exposure
 
 
 @contextlib.contextmanager

@@ -218,6 +218,7 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
         (["--background-scale", "4"], "--background-scale"),
         (["--seed", "4"], "--seed"),
         (["--operator", "schlick1994", "--pixels-per-degree", "20"], "--pixels-per-degree"),
+        (["FILE", "--pixels-per-degree", "60"], "--pixels-per-degree"),  # log-average goal
         (["FILE", "--size", "8x8"], "--size"),
         (["FILE", "--scene", "flash"], "--scene"),
     ],
@@ -225,8 +226,9 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
 def test_options_that_would_be_ignored_are_refused(tmp_path, capsys, args, option):
     image = tmp_path / "in.exr"
     io.write_image(image, np.ones((4, 4, 3), np.float32))
+    builtin = "FILE" not in args
     args = [str(image) if a == "FILE" else a for a in args]
-    status, err = _run(capsys, "render", *SMALL * ("FILE" not in args), *args, "--out", "o")
+    status, err = _run(capsys, "render", *SMALL * builtin, *args, "--out", "o")
     _assert_one_line_error(status, err, option)
 
 

@@ -24,6 +24,24 @@ def test_pfm_written_by_hand_is_read_the_right_way_up(tmp_path):
     np.testing.assert_array_equal(io.read_hdr(path), image)
 
 
+def test_radiance_exposure_lines_divide_the_pixels(tmp_path):
+    # A Radiance picture written byte by byte: flat RGBE pixels of 40
+    # (mantissa 0.625 * 256 = 160, exponent 6 + 128), after an exposure of 4
+    # and then one of 0.5 (pfilt writes one EXPOSURE line each time). The
+    # radiance is 40 / (4 * 0.5) = 20. OpenImageIO reports only the last
+    # line and applies none.
+    pixels = bytes([160, 160, 160, 134]) * 12
+    header = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nEXPOSURE=4\nEXPOSURE=0.5\n\n-Y 3 +X 4\n"
+    path = tmp_path / "exposed.hdr"
+    path.write_bytes(header + pixels)
+    np.testing.assert_array_equal(io.read_hdr(path), np.full((3, 4, 3), 20.0, np.float32))
+    path.write_bytes(header.replace(b"\nEXPOSURE=4\nEXPOSURE=0.5", b"") + pixels)
+    np.testing.assert_array_equal(io.read_hdr(path), np.full((3, 4, 3), 40.0, np.float32))
+    path.write_bytes(header.replace(b"EXPOSURE=4", b"EXPOSURE=-4") + pixels)
+    with pytest.raises(ValueError, match="exposed.hdr: expected a positive number.*EXPOSURE=-4"):
+        io.read_hdr(path)
+
+
 @pytest.mark.parametrize("suffix", [".exr", ".pfm", ".tif", ".hdr"])
 def test_hdr_formats_round_trip(tmp_path, suffix):
     image = _gradient()
