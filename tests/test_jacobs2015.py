@@ -515,6 +515,23 @@ def test_bad_dt_and_missing_key_are_named():
         op.Params(acuity_bands=0)
 
 
+@pytest.mark.parametrize(
+    "fields, match",
+    [
+        ({"a1": -1.0}, "a1: expected a positive, finite number"),
+        ({"b1": (1.2e-3, -1.0, 5.5e-7)}, "b1: expected a positive, finite number"),
+        ({"c2": jnp.nan}, "c2: expected a positive, finite number"),
+        ({"j1": -0.1}, "j1: expected a finite number >= 0"),
+    ],
+)
+def test_a_parameter_out_of_its_range_is_named(fields, match):
+    # A negative adaptation rate or a NaN decay ran and gave wrong frames
+    # without a word. (calcium_epsilon = 0 is allowed: Eq 11 as printed.)
+    with pytest.raises(ValueError, match=match):
+        op.Params(**fields)
+    op.Params(calcium_epsilon=0.0, j1=0.0, j2=0.0, g=0.0)
+
+
 def test_step_rejects_a_frame_of_another_shape():
     state = op.init(BARE, jnp.ones((4, 4, 3)))
     with pytest.raises(ValueError, match="frame"):

@@ -10,6 +10,9 @@ inside ``jit`` with ``equinox.error_if``, which raises
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from jaxadapt.spatial import check_value
 
 
 def check_frames(frames, rank, name="frames"):
@@ -105,3 +108,18 @@ def as_dtype(tree, dtype):
         return x.astype(dtype) if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating) else x
 
     return jax.tree.map(cast, tree)
+
+
+def check_fields(params, positive=(), non_negative=()):
+    """Raise ``ValueError`` naming the first field of ``params`` among
+    ``positive`` that is not positive and finite, or among ``non_negative``
+    that is negative or not finite (every element; traced values are not
+    checked, see :func:`jaxadapt.spatial.check_value`). For an operator's
+    ``Params.__check_init__``: a negative time constant or a NaN rate runs,
+    and its results are wrong without a word."""
+    for name in positive:
+        value = getattr(params, name)
+        check_value(name, value, lambda v: np.isfinite(v) & (v > 0), "a positive, finite number")
+    for name in non_negative:
+        value = getattr(params, name)
+        check_value(name, value, lambda v: np.isfinite(v) & (v >= 0), "a finite number >= 0")

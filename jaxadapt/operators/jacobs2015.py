@@ -85,7 +85,7 @@ import numpy as np
 
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
-from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt
+from jaxadapt.operators.checks import as_dtype, check_fields, check_frames, check_frames_and_dt
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_log_average, frame_centre
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
@@ -235,6 +235,7 @@ class Params(eqx.Module):
                 f"acuity_noise_cell: expected an int >= 1 pixels, got {self.acuity_noise_cell!r}"
             )
         check_value("rho_step", self.rho_step, lambda v: v >= 0, ">= 0 log10 units")
+        check_fields(self, positive=POSITIVE_FIELDS, non_negative=NON_NEGATIVE_FIELDS)
         if not (self.afterimage_blur >= 0):
             raise ValueError(f"afterimage_blur: expected >= 0 pixels, got {self.afterimage_blur!r}")
 
@@ -243,6 +244,30 @@ class Params(eqx.Module):
         """Whether the rendering draws random numbers (acuity loss, dithering)."""
         return self.acuity or self.dithering
 
+
+#: The fields of :class:`Params` that must be positive and finite (rates,
+#: exponents, scales and the display's levels).
+POSITIVE_FIELDS = (
+    "gamma",
+    "n",
+    "a1",
+    "a2",
+    "b1",
+    "b2",
+    "c1",
+    "c2",
+    "plateau_sigma",
+    "plateau_n",
+    "pixels_per_degree",
+    "afterimage_falloff_deg",
+    "acuity_noise_period",
+    "levels",
+)
+
+#: The fields of :class:`Params` that must be finite and at least 0 (the
+#: afterimage strengths, the acuity noise's spread, and the calcium floor,
+#: 0 for Eq 11 as printed).
+NON_NEGATIVE_FIELDS = ("j1", "j2", "g", "calcium_epsilon")
 
 #: The effects that :class:`Params` can switch off, in the pipeline's order.
 EFFECTS = ("bleaching", "local_adaptation", "purkinje", "mesopic_colour", "acuity", "dithering")

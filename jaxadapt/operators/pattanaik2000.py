@@ -46,7 +46,13 @@ from jaxadapt.color import (
     scotopic_luminance,
 )
 from jaxadapt.operators import goal as goals
-from jaxadapt.operators.checks import as_dtype, check_frames, check_frames_and_dt, check_rgb
+from jaxadapt.operators.checks import (
+    as_dtype,
+    check_fields,
+    check_frames,
+    check_frames_and_dt,
+    check_rgb,
+)
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
     forward_difference_slope,
@@ -141,8 +147,7 @@ class Params(eqx.Module):
                 "background_scale: expected a positive size in pixels, "
                 f"got {self.background_scale!r}"
             )
-        for name in POSITIVE_FIELDS:
-            check_value(name, getattr(self, name), _positive, "a positive, finite number")
+        check_fields(self, positive=POSITIVE_FIELDS)
         for name in ("display_B_cone", "goal_fraction"):
             check_value(name, getattr(self, name), lambda v: (v > 0) & (v <= 1), "in (0, 1]")
         check_value(
@@ -167,10 +172,6 @@ POSITIVE_FIELDS = (
     "display_adaptation",
     "pixels_per_degree",
 )
-
-
-def _positive(v):
-    return np.isfinite(v) & (v > 0)
 
 
 class State(NamedTuple):
