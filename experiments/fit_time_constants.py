@@ -25,10 +25,11 @@ What it shows (the numbers are printed by the run and written to
   observers (t0_rod lowest: its likelihood is the least quadratic).
 * Dark adaptation alone does not pin t0_rod: the rods are saturated
   (B_rod below delta) while their neural adaptation runs, so the data
-  barely depend on it. About one fit in eight is flagged (``converged``
-  False, standard error inf), the median standard error is about a
-  thousand times the estimate, while t0_cone, tau_rod and
-  tau_cone stay as well determined as with three steps.
+  barely depend on it. Only about one fit in five identifies it; in the
+  others the solver, which damps each parameter in its own units, runs it
+  along the flat direction towards 0 and it is flagged (``converged``
+  False, standard error inf), while t0_cone, tau_rod and tau_cone stay
+  identified in every fit and as well determined as with three steps.
 * tau_cone is identified, but not by the cone recovery, which the rods hide
   after the rod-cone break: with the bleaching constant c_cone held at the
   paper's value it is set by the static bleach of the pre-adaptation field,

@@ -329,7 +329,13 @@ class NielsenDamping(optx.AbstractSearch):
         _, actual, predicted = _reductions(y, y_eval, f_info, f_eval_info)
         positive = predicted > 0
         rho = jnp.where(positive, actual / jnp.where(positive, predicted, 1.0), 0.0)
-        accept, step_size, nu = nielsen_update(rho, state.step_size, state.nu)
+        # A point where the Jacobian is not finite cannot give the next step
+        # (a parameter run to the end of its map, where ``dp/du = 0`` meets
+        # an infinite derivative of the model): rejected, as a worse one is.
+        usable = jnp.all(jnp.isfinite(f_eval_info.jac.as_matrix()))
+        accept, step_size, nu = nielsen_update(
+            jnp.where(usable, rho, 0.0), state.step_size, state.nu
+        )
         step_size = jnp.where(first_step, 1.0 / self.tau, step_size).astype(state.step_size.dtype)
         nu = jnp.where(first_step, 2.0, nu).astype(state.nu.dtype)
         return step_size, accept | first_step, optx.RESULTS.successful, _DampingState(step_size, nu)
@@ -604,8 +610,11 @@ def _information_inverse(info):
     columns of parameters not identified (see the module notes).
     """
     eps = jnp.finfo(info.dtype).eps
-    finite = jnp.all(jnp.isfinite(info))
-    info = jnp.where(finite, 0.5 * (info + info.T), 0.0)
+    # A parameter whose row is not finite (at a bound of its map, where
+    # ``dp/du = 0`` meets an infinite derivative of the model: ``0 inf``) is
+    # left out, not identified, and the others are judged without it.
+    finite = jnp.all(jnp.isfinite(info), axis=1) & jnp.all(jnp.isfinite(info), axis=0)
+    info = jnp.where(finite[:, None] & finite[None, :], 0.5 * (info + info.T), 0.0)
     d = jnp.sqrt(jnp.maximum(jnp.diagonal(info), 0.0))
     sensitive = d > jnp.sqrt(eps) * jnp.max(d)
     d_safe = jnp.where(sensitive, d, 1.0)
@@ -808,6 +817,7 @@ class _Problem(eqx.Module):
             prediction = self.predict(u)
             scale = step_scale = 1.0
         cov_u, identified = _information_inverse(info)
+        gradient = jnp.where(identified, gradient, 0.0)  # cov_u is 0 there; no 0 NaN
         reduction = jnp.maximum(gradient @ cov_u @ gradient, 0.0)  # twice the step's, of the loss
         newton_step = jnp.sqrt(jnp.where(step_scale > 0, reduction / step_scale, 0.0))
         D, _ = ravel_pytree(

@@ -264,6 +264,27 @@ def test_flat_data_are_flagged_and_finite():
     assert np.all(np.isfinite(corr)) and np.all(corr[:, 0, 3] == 0.0)
 
 
+def test_a_parameter_run_off_its_flat_direction_leaves_the_others_identified():
+    # Dark adaptation alone barely depends on t0_rod (the rods are saturated
+    # while it acts). Damped in its own units, its first steps can run it to
+    # 1e-160, where dp/du = 0 meets the model's infinite derivative: a NaN
+    # Jacobian. Such a trial point is rejected; the solve goes on, t0_rod is
+    # flagged and the three other constants keep finite standard errors.
+    # (Accepted, the NaN stopped the solve and every standard error was inf
+    # in one fit in ten of experiments/fit_time_constants.py.)
+    L, dt = _protocol([(1e-6, 1800.0, 40)])
+    args = (L, dt, jnp.asarray(1e6))
+    rng = np.random.default_rng(2)
+    clean = np.asarray(log_threshold(TRUTH, args))
+    data = clean + 0.05 * rng.standard_normal((24, clean.size))
+    f = fitting.fit(log_threshold, op.Params(), NAMES, data, args=args)
+    assert np.all(f.solved)
+    for name in ("t0_cone", "tau_rod", "tau_cone"):
+        assert np.all(np.isfinite(f.se[name])), name
+    assert not np.all(np.isfinite(f.se["t0_rod"]))  # not identified in some fits
+    assert np.all(f.converged == np.isfinite(f.se["t0_rod"]))
+
+
 def test_bad_input_is_named():
     data = np.zeros(44)
     with pytest.raises(ValueError, match=r"data: expected shape \(\.\.\., 44\).*got shape \(43,\)"):
