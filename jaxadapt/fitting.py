@@ -252,15 +252,22 @@ def _sum_squares(tree):
     return sum(jnp.sum(leaf**2) for leaf in jax.tree.leaves(tree))
 
 
-def _reductions(y, y_new, f_info, f_new):
-    """``(S, S - S_new, S - |r + J (y_new - y)|^2)``: the sum of squares ``S``
-    of the residuals ``r`` at ``y``, its actual reduction at ``y_new`` and
-    the reduction predicted by the linearisation ``J`` at ``y``
-    (``f_info``, ``f_new``: optimistix's residuals and Jacobian there)."""
+def _predicted_reduction(y, y_new, f_info):
+    """``(S, S - |r + J (y_new - y)|^2)``: the sum of squares ``S`` of the
+    residuals ``r`` at ``y`` and its reduction at ``y_new`` predicted by the
+    linearisation ``J`` at ``y`` (``f_info``: optimistix's residuals and
+    Jacobian there)."""
     before = _sum_squares(f_info.residual)
     step = jax.tree.map(jnp.subtract, y_new, y)
     linear = jax.tree.map(jnp.add, f_info.residual, f_info.jac.mv(step))
-    return before, before - _sum_squares(f_new.residual), before - _sum_squares(linear)
+    return before, before - _sum_squares(linear)
+
+
+def _reductions(y, y_new, f_info, f_new):
+    """``(S, S - S_new, predicted)``: :func:`_predicted_reduction` and the
+    actual reduction at ``y_new``, whose residuals are ``f_new``'s."""
+    before, predicted = _predicted_reduction(y, y_new, f_info)
+    return before, before - _sum_squares(f_new.residual), predicted
 
 
 def nielsen_update(rho, step_size, nu):
@@ -469,7 +476,7 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
             & (predicted <= self.ftol)
             & (actual <= 2.0 * predicted)
         )
-        _, _, trial = _reductions(new_y, new_state.y_eval, new_state.f_info, new_state.f_info)
+        _, trial = _predicted_reduction(new_y, new_state.y_eval, new_state.f_info)
         eps = jnp.finfo(before.dtype).eps
         stalled = ~accepted & later & (trial <= eps * scale)
         cauchy = new_state.terminate & ~state.first_step
