@@ -161,9 +161,11 @@ def build_parser():
         "--background",
         choices=tuple(BACKGROUNDS),
         default="global",
-        help="background (adapting) luminance: global (one per frame, the default), or a "
-        "local estimate per pixel (box, gaussian, bilateral, adaptive, multiscale); with "
-        "pattanaik2000 a local background gives per-pixel, time-dependent adaptation",
+        help="background (adapting) luminance: one per frame, global (the log average, the "
+        "default) or arithmetic (the mean), or a local estimate per pixel (box, gaussian, "
+        "bilateral, adaptive, multiscale; bilateral's time grows with the square of "
+        "--background-scale); with pattanaik2000 a local background gives per-pixel, "
+        "time-dependent adaptation",
     )
     render.add_argument(
         "--background-scale",
@@ -392,8 +394,10 @@ def _check_options(args):
                 f"--{option.replace('_', '-')}: does not apply to the static tone curve "
                 f"{args.operator}"
             )
-    if args.background_scale is not None and args.background == "global":
-        raise UsageError("--background-scale: applies to a local --background, not global")
+    if args.background_scale is not None and args.background in ("global", "arithmetic"):
+        raise UsageError(
+            f"--background-scale: applies to a local --background, not {args.background}"
+        )
     if args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
 

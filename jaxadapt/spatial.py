@@ -110,8 +110,21 @@ def separable_filter(image, taps):
     23, where XLA splits the passes itself). On a GPU that fused loop is
     the fast form (the per-axis one cost the 2015 operator a third of its
     frame rate on an H100), so other platforms keep it.
+
+    Kernels of more than :data:`LONG_KERNEL` taps go through the FFT
+    instead, on every platform (:func:`_filter_by_fft`): a sum of shifted
+    slices costs a product a tap, and XLA compiles one slice a tap (a
+    Gaussian background of 1,000 pixels, 5,657 taps, compiled for
+    minutes).
     """
     return _separable_filter(image, tuple(float(w) for w in np.asarray(taps)))
+
+
+#: Taps above which :func:`separable_filter` filters through the FFT. For a
+#: 1920x1080 float32 plane on 2 cores (one axis at a time, shifted slices
+#: against the FFT): 69 against 76 ms at 225 taps, 530 against 73 ms at 257,
+#: where XLA's fusion of the slices changes.
+LONG_KERNEL = 225
 
 
 @functools.partial(jax.jit, static_argnames="taps")
@@ -120,12 +133,43 @@ def _separable_filter(image, taps):
     ``taps`` (a tuple, static): called eagerly, each tap's slice and product
     would otherwise be dispatched, and compiled, one op at a time."""
     taps = np.asarray(taps)
+    if taps.shape[0] > LONG_KERNEL:
+        return _filter_by_fft(image, taps).astype(image.dtype)
     out = jax.lax.platform_dependent(
         image,
         cpu=lambda image: _filter_per_axis(image, taps),
         default=lambda image: _filter_both_axes(image, taps),
     )
     return out.astype(image.dtype)
+
+
+def _filter_by_fft(image, taps):
+    """:func:`separable_filter` one axis at a time, each as a circular
+    convolution over one period of the mirror-extended axis.
+
+    Mirrored about its edge pixels, an axis of length ``n`` repeats with
+    period ``P = 2 (n - 1)``: ``x_0 ... x_(n-1) x_(n-2) ... x_1``, then again.
+    Filtering that extension with taps ``h_i`` (``|i| <= r``, ``r`` any
+    length) is the circular convolution of one period with the taps folded
+    onto it, ``k_j = sum_(i = j mod P) h_i``, computed by a real FFT in
+    ``O(P log P)`` a line whatever the kernel's length. The taps are
+    symmetric, so the spectrum of ``k`` is real. An axis of one pixel is
+    constant under the filter (its extension is that pixel).
+    """
+    for axis in (-2, -1):
+        n = image.shape[axis]
+        if n == 1:
+            continue
+        period = 2 * (n - 1)
+        r = (taps.shape[0] - 1) // 2
+        folded = np.zeros(period)
+        np.add.at(folded, np.arange(-r, r + 1) % period, taps)
+        spectrum = np.fft.rfft(folded).real.astype(image.dtype)
+        line = jnp.moveaxis(image, axis, -1)
+        extended = jnp.concatenate([line, line[..., -2:0:-1]], axis=-1)
+        filtered = jnp.fft.irfft(jnp.fft.rfft(extended) * spectrum, n=period)
+        image = jnp.moveaxis(filtered[..., :n], -1, axis)
+    return image
 
 
 def _filter_per_axis(image, taps):

@@ -216,6 +216,7 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
         (["--operator", "jacobs2015", "--encoding", "gamma"], "--encoding"),
         (["--operator", "ward-jnd", "--adaptation-goal", "foveal"], "--adaptation-goal"),
         (["--background-scale", "4"], "--background-scale"),
+        (["--background", "arithmetic", "--background-scale", "4"], "--background-scale"),
         (["--seed", "4"], "--seed"),
         (["--operator", "schlick1994", "--pixels-per-degree", "20"], "--pixels-per-degree"),
         (["FILE", "--pixels-per-degree", "60"], "--pixels-per-degree"),  # log-average goal

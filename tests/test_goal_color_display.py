@@ -77,17 +77,34 @@ def test_gaussian_blur_matches_scipy_and_keeps_constants():
         spatial.gaussian_kernel(0.0)
 
 
-def test_both_forms_of_the_separable_filter_agree():
-    # The CPU runs the per-axis form, other platforms the both-axes form
+def test_the_forms_of_the_separable_filter_agree():
+    # The CPU runs the per-axis form, other platforms the both-axes form, and
+    # kernels longer than LONG_KERNEL taps go through the FFT
     # (separable_filter's notes): the same filter, kernels longer than the
     # image and one-pixel axes included.
     rng = np.random.default_rng(3)
-    forms = (spatial._filter_per_axis, spatial._filter_both_axes)
+    forms = (spatial._filter_per_axis, spatial._filter_both_axes, spatial._filter_by_fft)
     for shape, sigma in (((3, 20, 30), 1.5), ((2, 5, 7), 10.0), ((1, 9), 0.75), ((4, 1, 6), 2.0)):
         x = jnp.asarray(rng.uniform(size=shape))
         taps = spatial.gaussian_kernel(sigma)
-        per_axis, both_axes = (jax.jit(f)(x, taps) for f in forms)
-        np.testing.assert_allclose(per_axis, both_axes, rtol=1e-13)
+        per_axis, *others = (jax.jit(lambda x, f=f, t=taps: f(x, t))(x) for f in forms)
+        for other in others:
+            np.testing.assert_allclose(other, per_axis, rtol=1e-12)
+
+
+def test_long_kernels_go_through_the_fft_and_match_scipy():
+    # 1,001 taps (sigma 125): one slice a tap would take minutes to compile.
+    from scipy.ndimage import gaussian_filter
+
+    taps = spatial.gaussian_kernel(125.0)
+    assert taps.size > spatial.LONG_KERNEL
+    x = np.random.default_rng(4).lognormal(size=(2, 40, 300))
+    expected = np.stack([gaussian_filter(a, 125.0, mode="mirror", truncate=4.0) for a in x])
+    np.testing.assert_allclose(spatial.gaussian_blur(jnp.asarray(x), 125.0), expected, rtol=1e-12)
+    x32 = jnp.asarray(x, jnp.float32)
+    blurred = spatial.gaussian_blur(x32, 125.0)
+    assert blurred.dtype == jnp.float32
+    np.testing.assert_allclose(blurred, expected, rtol=1e-5)
 
 
 def test_both_forms_of_the_colour_transform_are_the_matrix_product():
