@@ -4,7 +4,10 @@ Every error that comes from the user's input (arguments, files, values)
 prints one line on stderr and exits with status 2. Outputs are written into
 a staging folder inside ``--out`` and moved into place only when the whole
 run has succeeded, so a failed run leaves nothing half-written and
-overwrites nothing.
+overwrites nothing. An interrupted run (Ctrl-C, or SIGTERM as a job
+scheduler sends it) is a failed one: it removes its staging folder, prints
+one line and exits with status 130 (143 for SIGTERM), as a shell reports
+such a signal.
 """
 
 import argparse
@@ -12,8 +15,10 @@ import contextlib
 import csv
 import re
 import shutil
+import signal
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -714,12 +719,16 @@ def main(argv=None):
     import jax
 
     try:
-        if args.command == "render":
-            render(args, console)
-        elif args.command == "psychometric" and args.action == "simulate":
-            psychometric_simulate(args, console)
-        elif args.command == "psychometric":
-            psychometric_fit(args, console)
+        with _terminate_as_interrupt():
+            if args.command == "render":
+                render(args, console)
+            elif args.command == "psychometric" and args.action == "simulate":
+                psychometric_simulate(args, console)
+            elif args.command == "psychometric":
+                psychometric_fit(args, console)
+    except KeyboardInterrupt as e:
+        print("jaxadapt: interrupted; nothing was written to --out", file=sys.stderr)
+        return 128 + (e.args[0] if e.args else signal.SIGINT)
     except (UsageError, ValueError, FileNotFoundError, OSError, eqx.EquinoxRuntimeError) as e:
         print(f"jaxadapt: error: {_message(e)}", file=sys.stderr)
         return 2
@@ -732,6 +741,27 @@ def main(argv=None):
         )
         return 2
     return 0
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """While the body runs, SIGTERM raises ``KeyboardInterrupt(SIGTERM)`` as
+    Ctrl-C raises ``KeyboardInterrupt``, so that a terminated run cleans up
+    as an interrupted one (by default SIGTERM ends Python at once and the
+    staging folder would stay in ``--out``). Only the main thread can set
+    a signal handler; elsewhere SIGTERM keeps its own."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(signum)
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _message(error):

@@ -1,6 +1,10 @@
 """The command line, end to end, on small inputs."""
 
 import csv
+import signal
+import subprocess
+import sys
+import time
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -455,3 +459,28 @@ def test_psychometric_simulate_bad_input(tmp_path, capsys, args, words):
     status, err = _run(capsys, "psychometric", "simulate", *args, "--out", str(out))
     _assert_one_line_error(status, err, *words)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupted_render_leaves_nothing_and_says_so(tmp_path, signum):
+    # Ctrl-C (SIGINT) and a scheduler's SIGTERM, sent once the render has
+    # made its staging folder: one line, the shell's status 128 + signal,
+    # and neither the staging folder nor the --out it made remain.
+    out = tmp_path / "new" / "out"
+    command = [sys.executable, "-m", "jaxadapt", "render", "--scene", "tunnel"]
+    process = subprocess.Popen(
+        [*command, "--size", "320x180", "--out", str(out)],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not (out.exists() and any(out.iterdir())) and process.poll() is None:
+        assert time.monotonic() < deadline, "the render made no staging folder in 120 s"
+        time.sleep(0.05)
+    process.send_signal(signum)
+    err = process.communicate(timeout=120)[1]
+    assert process.returncode == 128 + signum, err
+    assert err.strip().splitlines()[-1] == "jaxadapt: interrupted; nothing was written to --out"
+    assert "Traceback" not in err
+    assert not (tmp_path / "new").exists()
