@@ -206,7 +206,8 @@ def build_parser():
         choices=FORMATS,
         default=None,
         dest="formats",
-        help="output format, repeatable: png (sRGB frames), mp4 (video), exr or pfm "
+        help="output format, repeatable: png (sRGB frames), mp4 (H.264 video; an odd "
+        "width or height is padded by one edge pixel, as 4:2:0 needs), exr or pfm "
         "(linear display values in [0, 1], one file per frame); default: png and mp4",
     )
     render.add_argument(

@@ -27,10 +27,11 @@ def read_hdr(path):
     Parameters
     ----------
     path : str or Path
-        An OpenEXR, Radiance HDR, PFM or floating-point TIFF file.
-        Single-channel images are taken as grey; channels beyond the third
-        (alpha) are dropped. A Radiance file's pixels are divided by its
-        exposure (:func:`radiance_exposure`).
+        An OpenEXR, Radiance HDR, PFM or floating-point TIFF file. Its
+        colour channels are found by name (:func:`rgb_channels`): R, G and
+        B, or a luminance Y (or a single channel) taken as grey; alpha and
+        other channels are dropped. A Radiance file's pixels are divided by
+        its exposure (:func:`radiance_exposure`).
 
     Returns
     -------
@@ -72,11 +73,34 @@ def read_hdr(path):
     finally:
         image.close()
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
+    pixels = pixels[..., rgb_channels(path, spec.channelnames)]
     if is_rgbe:
         pixels = pixels / np.float32(radiance_exposure(path))
-    if pixels.shape[-1] < 3:
-        pixels = np.repeat(pixels[..., :1], 3, axis=-1)
-    return pixels[..., :3]
+    return pixels
+
+
+def rgb_channels(path, names):
+    """Indices of the red, green and blue channels among ``names``.
+
+    By name: ``R``, ``G``, ``B``; else a luminance ``Y`` three times (a grey
+    image; of a luminance-chroma EXR, ``Y RY BY``, the luminance alone);
+    else a single channel three times, or the first three of three or more
+    (a file whose channels are not named as colours). Anything else, such
+    as two channels neither of which is ``Y``, is an error naming the file
+    and its channels.
+    """
+    names = list(names)
+    if {"R", "G", "B"} <= set(names):
+        return [names.index(c) for c in "RGB"]
+    if "Y" in names:
+        return [names.index("Y")] * 3
+    if len(names) == 1:
+        return [0] * 3
+    if len(names) >= 3:
+        return [0, 1, 2]
+    raise ValueError(
+        f"{path}: expected R, G and B channels or a luminance Y, got channels {', '.join(names)}"
+    )
 
 
 def radiance_exposure(path):

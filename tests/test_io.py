@@ -1,6 +1,7 @@
 """HDR file input and output (OpenImageIO) against the formats' own layout."""
 
 import numpy as np
+import OpenImageIO as oiio
 import pytest
 
 from jaxadapt import io
@@ -63,3 +64,41 @@ def test_png_is_tagged_with_its_encoding(tmp_path, encoding, chunk):
         assert b"sRGB" not in data
         at = data.index(b"gAMA") + 4
         assert int.from_bytes(data[at : at + 4], "big") == round(1e5 / 2.2)
+
+
+@pytest.mark.parametrize(
+    "names, expected",
+    [
+        (("B", "G", "R", "A"), [3.0, 2.0, 1.0]),  # stored B G R A: read as R G B
+        (("A", "Y"), [2.0, 2.0, 2.0]),  # grey with alpha
+        (("Y", "RY", "BY"), [1.0, 1.0, 1.0]),  # luminance-chroma: the luminance
+        (("Z",), [1.0, 1.0, 1.0]),
+        (("u", "v", "w"), [1.0, 2.0, 3.0]),
+    ],
+)
+def test_colour_channels_are_found_by_name(tmp_path, names, expected):
+    path = tmp_path / "channels.exr"
+    spec = oiio.ImageSpec(4, 3, len(names), "float")
+    spec.channelnames = names
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    # Channel i holds i + 1, in the order the names were given.
+    out.write_image(
+        np.broadcast_to(np.arange(1.0, len(names) + 1, dtype=np.float32), (3, 4, len(names)))
+    )
+    out.close()
+    np.testing.assert_array_equal(io.read_hdr(path), np.broadcast_to(expected, (3, 4, 3)))
+
+
+def test_two_channels_that_are_not_grey_are_refused(tmp_path):
+    path = tmp_path / "motion.exr"
+    spec = oiio.ImageSpec(4, 3, 2, "float")
+    spec.channelnames = ("R", "G")
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    out.write_image(np.ones((3, 4, 2), np.float32))
+    out.close()
+    with pytest.raises(
+        ValueError, match=r"motion\.exr: expected R, G and B channels .* got channels R, G"
+    ):
+        io.read_hdr(path)
