@@ -583,16 +583,17 @@ def psychometric_fit(args, console):
                 "n_control": int(c.test.n_y),
             }
         )
-    # Data that place no PSE (every response the same, or one level): said.
-    # (Under separation the PSE lies between two levels; the slope is the
-    # prior's, and the flags say so.)
-    no_pse = (np.asarray(table.flags) & (psyfit.ALL_SAME | psyfit.SINGLE_LEVEL)) > 0
+    # Data that place no PSE (every response the same, one level, or no
+    # slope): said. (Under separation the PSE lies between two levels; the
+    # slope is the prior's, and the flags say so.)
+    no_pse = (np.asarray(table.flags) & (psyfit.ALL_SAME | psyfit.SINGLE_LEVEL | psyfit.FLAT)) > 0
     for i in np.flatnonzero(no_pse):
         why = ", ".join(psyfit.flag_names(int(table.flags[i])))
         console.print(
             f"warning: participant {table.participant[i]}, condition {table.condition[i]}: "
-            f"the data place no PSE ({why}); the PSE {table.pse[i]:+.4g} and its interval in "
-            "fits.csv come from the fit's weak prior, and it enters the group test as such"
+            f"the data place no PSE ({why}); its PSE {table.pse[i]:+.4g} in fits.csv is set "
+            "by the fit's prior and least slope, not by the data, and enters the group test "
+            "as such"
         )
     written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
     if not rows:

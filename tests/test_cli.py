@@ -372,12 +372,14 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert not (out / "group_test.csv").exists()  # the last run's, removed
     said = " ".join(err.split())  # the console wraps its lines
     assert "no group test" in said and "dark, manipulated" in said and "--control" in said
-    # A participant whose responses are all "yes" has no PSE of its own: said.
+    # A participant whose responses are all "yes", and one whose are half
+    # "yes" at every level (no slope), have no PSE of their own: said.
     rows = trials.read_text().splitlines()
-    rows = [
-        r if not r.startswith("p0,dark,") else ",".join(r.split(",")[:3] + ["20", "20"])
-        for r in rows
-    ]
+    for first, n_yes in (("p0,dark,", "20"), ("p1,dark,", "10")):
+        rows = [
+            r if not r.startswith(first) else ",".join(r.split(",")[:3] + [n_yes, "20"])
+            for r in rows
+        ]
     trials.write_text("\n".join(rows) + "\n")
     status, err = _run(
         capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(out)
@@ -385,7 +387,8 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert status == 0, err
     said = " ".join(err.split())
     assert "warning: participant p0, condition dark: the data place no PSE (all_same" in said
-    assert said.count("warning") == 1, said
+    assert "warning: participant p1, condition dark: the data place no PSE (flat)" in said
+    assert said.count("warning") == 2, said
 
 
 def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):

@@ -137,6 +137,17 @@ def test_degenerate_data_give_flags_not_nan():
     assert X[1] < out.pse[2] < X[2] and X[1] < out.pse[4] < X[2]
 
 
+def test_all_no_places_the_pse_above_the_levels_and_all_yes_below():
+    # The slope of such data is zero up to rounding; its sign used to pick
+    # the side (levels shifted by 0.5 put all "no" at -5e5), and the group
+    # test ranked the participant at either end.
+    for offset in (0.0, 0.5, -0.5, 3.0):
+        levels = X + offset
+        out = _fit(np.stack([levels] * 2), np.array([[0] * 5, [30] * 5]), np.full((2, 5), 30))
+        assert out.pse[0] > levels.max() and out.pse[1] < levels.min(), offset
+        assert np.all(out.flags & F.FLAT)
+
+
 def test_single_level_and_empty_dataset():
     n = np.array([[0, 0, 30, 0, 0], [0, 0, 0, 0, 0]])
     out = _fit(X, np.array([[0, 0, 12, 0, 0], [0, 0, 0, 0, 0]]), n)

@@ -72,8 +72,13 @@ standardised intercept and slope, which gives finite estimates (a steep but fini
 separation) and a positive-definite information matrix. The PSE and sigma are
 computed with the standardised slope kept at least ``1e-6`` in magnitude
 (``FLAT`` is set when that bound is used), so that a flat function gives a very
-large but finite PSE. ``EXTRAPOLATED`` PSEs are returned, as the paper does
-for its participant 11, and flagged.
+large but finite PSE. A flat function counts as increasing, as a
+psychometric function of the test level is: every response "no" puts the
+PSE far above the tested levels and every one "yes" far below them, on the
+side the data imply (the slope of such data is zero up to rounding, whose
+sign would otherwise pick the side, and a group test would rank the
+participant at either end). ``EXTRAPOLATED`` PSEs are returned, as the paper
+does for its participant 11, and flagged.
 
 References
 ----------
@@ -489,7 +494,7 @@ def _fit_one(x, k, n, guess, lapse, max_steps):
     cov_a = jnp.linalg.inv(jax.hessian(_objective)(theta, data, guess, lapse))[:2, :2]
 
     flat = jnp.abs(a1) < MIN_SLOPE
-    a1_safe = jnp.where(flat, jnp.where(a1 < 0, -MIN_SLOPE, MIN_SLOPE), a1)
+    a1_safe = jnp.where(flat, MIN_SLOPE, a1)  # flat counts as increasing (module notes)
     pse = data.c - data.s * a0 / a1_safe
     sigma = data.s / a1_safe
     # b = J a with J = [[1, -c/s], [0, 1/s]]; the PSE's gradient in a-space.
