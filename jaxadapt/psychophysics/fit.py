@@ -101,6 +101,8 @@ from jax.scipy.special import gammaln, log_ndtr, ndtr, xlogy
 from jax.sharding import AxisType, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from jaxadapt.fitting import NEWTON_STEP
+
 ALL_SAME = 1
 SEPARATION = 2
 SINGLE_LEVEL = 4
@@ -151,7 +153,10 @@ class Fit(NamedTuple):
     deviance : array
         ``2 (loglik_saturated - loglik)``.
     converged : array of bool
-        Whether the optimiser met its tolerance within ``max_steps``.
+        Whether the optimiser met its tolerance within ``max_steps`` and a
+        Newton step from the estimate (exact Hessian, :func:`_newton_decrement`)
+        would move it by at most ``jaxadapt.fitting.NEWTON_STEP`` (0.1)
+        standard errors.
     flags : array of int
         Bit flags, see the module notes and :func:`flag_names`.
     """
@@ -395,8 +400,9 @@ class _Backtracking(optx.AbstractSearch):
     def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
         predicted = f_info.compute_grad_dot(y_eval - y)
         decrease = f_eval_info.f - f_info.f
-        armijo = (decrease <= 0.1 * predicted) & (predicted <= 0)
-        negligible = -predicted <= jnp.finfo(y.dtype).eps * jnp.abs(f_info.f)
+        descent = predicted <= 0
+        armijo = (decrease <= 0.1 * predicted) & descent
+        negligible = descent & (-predicted <= jnp.finfo(y.dtype).eps * jnp.abs(f_info.f))
         accept = first_step | ((armijo | negligible) & jnp.isfinite(f_eval_info.f))
         step_size = jnp.where(accept, 1.0, 0.5 * state).astype(y.dtype)
         return step_size, accept, optx.RESULTS.successful, step_size
@@ -408,8 +414,16 @@ def _quiet(**kwargs):
 
 class _BFGS(optx.AbstractBFGS):
     """``optimistix.BFGS`` with the :class:`_Backtracking` search, started
-    from a given inverse Hessian instead of the identity, and also stopped by
-    the Newton decrement.
+    from a given inverse Hessian instead of the identity, kept positive
+    definite, and also stopped by the Newton decrement.
+
+    optimistix updates the inverse Hessian whenever ``y' s`` exceeds ``eps``
+    in absolute terms; in float32 the update of a short step can then lose
+    positive definiteness to rounding (a fitted lapse rate's flat valley),
+    after which the decrement below is negative, the solve stopped 0.27
+    log-likelihood units short of the optimum and said it had converged.
+    An update that is not positive definite (its Cholesky factor not
+    finite) is not made: the estimate stays the last positive-definite one.
 
     The objective is the negative log-likelihood per trial; the solver also
     stops when ``trials * g' H^-1 g``, twice the gain in log-likelihood that
@@ -417,8 +431,10 @@ class _BFGS(optx.AbstractBFGS):
     Vandenberghe 2004, §9.5.1). With fitted rates the likelihood can have a
     flat valley (the slope traded against a lapse rate) along which BFGS
     creeps by steps far below the standard errors yet above the parameter
-    tolerance; this rule stops it there. The probit likelihood alone is
-    strictly convex and uses ``decrement_tol = 0``.
+    tolerance; this rule stops it there. BFGS's estimate of ``H^-1`` can be
+    poor along such a valley, so :func:`_fit_one` checks the stop with the
+    exact Hessian (:func:`_newton_decrement`). The probit likelihood alone
+    is strictly convex and uses ``decrement_tol = 0``.
     """
 
     rtol: float
@@ -437,11 +453,38 @@ class _BFGS(optx.AbstractBFGS):
         inverse = lx.PyTreeLinearOperator(self.hessian_inv, structure, lx.positive_semidefinite_tag)
         return optx.FunctionInfo.EvalGradHessianInv(f, grad, inverse), None
 
+    def update_hessian(self, y, y_eval, f_info, f_eval_info, hessian_update_state):
+        new, state = super().update_hessian(y, y_eval, f_info, f_eval_info, hessian_update_state)
+        matrix = new.hessian_inv.as_matrix()
+        positive = jnp.all(jnp.isfinite(jnp.linalg.cholesky(matrix)))
+        inverse = lx.PyTreeLinearOperator(
+            jnp.where(positive, matrix, f_info.hessian_inv.as_matrix()),
+            new.hessian_inv.out_structure(),
+            lx.positive_semidefinite_tag,
+        )
+        return optx.FunctionInfo.EvalGradHessianInv(new.f, new.grad, inverse), state
+
     def terminate(self, fn, y, args, options, state, tags):
         done, result = super().terminate(fn, y, args, options, state, tags)
         info = state.f_info
         decrement = self.trials * jnp.dot(info.grad, info.hessian_inv.mv(info.grad))
         return done | ((state.num_accepted_steps > 0) & (decrement <= self.decrement_tol)), result
+
+
+def _newton_decrement(f, y):
+    """``sum_i (q_i' g)^2 / |lambda_i|`` of ``f`` at ``y``, with ``g`` its
+    gradient and ``lambda_i, q_i`` the eigenvalues and eigenvectors of its
+    Hessian: ``g' H^-1 g`` where ``H`` is positive definite, twice the gain
+    of a Newton step, and a step's gain along each direction of negative
+    curvature too (saddle-free Newton; Dauphin et al. 2014). For a negative
+    log-likelihood it is the squared length of a Newton step in standard
+    errors (the observed information's). ``inf`` where ``H`` is singular
+    and ``g`` is not 0 in its null space."""
+    gradient, hessian = jax.grad(f)(y), jax.hessian(f)(y)
+    curvature, directions = jnp.linalg.eigh(hessian)
+    along = directions.T @ gradient
+    terms = jnp.where(along == 0, 0.0, along**2 / jnp.abs(curvature))
+    return jnp.where(jnp.all(jnp.isfinite(terms)), jnp.sum(terms), jnp.inf)
 
 
 def _inverse_if_positive_definite(H):
@@ -490,6 +533,11 @@ def _fit_one(x, k, n, guess, lapse, max_steps):
     data = _prepare(x, k, n)
     dtype = x.dtype
     theta, converged = _solve(data, guess, lapse, max_steps)
+    # The solver's tolerances can be met short of the optimum in the flat
+    # valley of fitted rates (_BFGS): converged only where a Newton step
+    # would move the estimates by at most NEWTON_STEP standard errors.
+    decrement = _newton_decrement(lambda t: _objective(t, data, guess, lapse), theta)
+    converged = converged & (decrement <= NEWTON_STEP**2)
     (a0, a1), log_guess, log_lapse = _unpack(theta, guess, lapse)
     cov_a = jnp.linalg.inv(jax.hessian(_objective)(theta, data, guess, lapse))[:2, :2]
 
