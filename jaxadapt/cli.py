@@ -77,11 +77,35 @@ def _positive(text):
     return value
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line, as every other error of
+    the command line (the usage is one ``--help`` away)."""
+
+    def error(self, message):
+        self.exit(2, f"jaxadapt: error: {message} (see {self.prog} --help)\n")
+
+
+#: Largest seed: JAX's keys take a 64-bit signed integer.
+MAX_SEED = 2**63 - 1
+
+
+def _seed(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number from 0 to 2**63 - 1, got {text!r}"
+        )
+    return value
+
+
 def build_parser():
     from jaxadapt.operators.goal import BACKGROUNDS, GOALS
     from jaxadapt.scenes import SCENES
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jaxadapt",
         description="Simulate time-dependent visual adaptation to HDR scenes "
         "and render what a viewer would see on an ordinary display.",
@@ -158,7 +182,7 @@ def build_parser():
     )
     render.add_argument(
         "--seed",
-        type=int,
+        type=_seed,
         default=None,
         help="seed of the random draws of jacobs2015 (acuity noise, dithering); default 0",
     )
@@ -255,7 +279,7 @@ def build_parser():
         default=None,
         help="condition the others are compared with (default: control, if the table has it)",
     )
-    fit.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
+    fit.add_argument("--seed", type=_seed, default=0, help="seed of the bootstrap (default 0)")
     simulate = psy.add_parser(
         "simulate",
         help="simulate an experiment of the 2015 paper with model observers",
@@ -285,7 +309,9 @@ def build_parser():
         "brightness per unit of cue, repeatable (default: 0, observers who judge luminance "
         "only); e.g. --weight desaturation=-0.1 makes desaturated tests look darker",
     )
-    simulate.add_argument("--seed", type=int, default=0, help="seed of the simulation (default 0)")
+    simulate.add_argument(
+        "--seed", type=_seed, default=0, help="seed of the simulation (default 0)"
+    )
     simulate.add_argument(
         "--out", type=Path, default=Path("out"), help="output folder (default ./out)"
     )
@@ -351,6 +377,8 @@ def _staged(out, replaces=None, keep=()):
     try:
         try:
             yield staging
+            if _SIGNALLED:  # an interrupt that Python ignored (_interruptible)
+                raise KeyboardInterrupt(_SIGNALLED[0])
         except BaseException:
             unmake()
             raise
@@ -442,6 +470,16 @@ def _operator(args, source):
         from jaxadapt.operators import pattanaik2000 as op
 
         goal = args.adaptation_goal or source.goal
+        if args.adaptation_goal is not None and args.background != "global":
+            raise UsageError(
+                f"--adaptation-goal: applies to a global background, not {args.background}, "
+                "whose local estimate is each pixel's goal"
+            )
+        if args.gaze is not None and args.background == "global" and goal != "foveal":
+            raise UsageError(
+                "--gaze: pattanaik2000 reads the gaze for the foveal adaptation goal or the "
+                f"diagnostics of a local background, not for goal {goal} with a global background"
+            )
         if args.pixels_per_degree is not None and (goal, args.background) != ("foveal", "global"):
             raise UsageError(
                 "--pixels-per-degree: applies to the foveal adaptation goal "
@@ -721,7 +759,7 @@ def main(argv=None):
     import jax
 
     try:
-        with _terminate_as_interrupt():
+        with _interruptible():
             if args.command == "render":
                 render(args, console)
             elif args.command == "psychometric" and args.action == "simulate":
@@ -745,25 +783,38 @@ def main(argv=None):
     return 0
 
 
+#: Signals (SIGINT, SIGTERM) received while a command ran (:func:`_interruptible`).
+_SIGNALLED = []
+
+
 @contextlib.contextmanager
-def _terminate_as_interrupt():
-    """While the body runs, SIGTERM raises ``KeyboardInterrupt(SIGTERM)`` as
-    Ctrl-C raises ``KeyboardInterrupt``, so that a terminated run cleans up
-    as an interrupted one (by default SIGTERM ends Python at once and the
-    staging folder would stay in ``--out``). Only the main thread can set
-    a signal handler; elsewhere SIGTERM keeps its own."""
+def _interruptible():
+    """While the body runs, SIGINT (Ctrl-C) and SIGTERM raise
+    ``KeyboardInterrupt(signum)`` and are remembered in :data:`_SIGNALLED`.
+
+    By default SIGTERM ends Python at once and the staging folder would stay
+    in ``--out``; raised as an interrupt, the run cleans up as a failed one.
+    Python ignores (and prints) an exception raised while it runs a
+    garbage-collector callback, as JAX's is: a render went on to the end
+    after such a SIGTERM. So :func:`_staged` also checks :data:`_SIGNALLED`
+    before it moves anything into place. Only the main thread can set
+    signal handlers; elsewhere the signals keep their own.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def interrupt(signum, frame):
+        _SIGNALLED.append(signum)
         raise KeyboardInterrupt(signum)
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    _SIGNALLED.clear()
+    previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _message(error):

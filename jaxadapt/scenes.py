@@ -316,9 +316,10 @@ def saccade(start, end, at):
 def read_gaze_csv(path):
     """Read a gaze recording: a CSV of ``t, x, y`` rows (s, pixels).
 
-    An optional header line ``t,x,y`` is skipped. ``x`` and ``y`` may be
-    empty or ``nan`` where the tracker lost the eye (a blink); times must
-    increase.
+    An optional header line ``t,x,y`` is skipped (as is a UTF-8 byte-order
+    mark, which spreadsheets write). ``x`` and ``y`` may both be empty or
+    ``nan`` where the tracker lost the eye (a blink); one of them alone
+    missing, or an infinite coordinate, is an error. Times must increase.
 
     Returns
     -------
@@ -341,7 +342,7 @@ def read_gaze_csv(path):
         raise FileNotFoundError(f"gaze: expected a CSV file of t,x,y rows, got {str(path)!r}")
     rows = []
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise ValueError(
             f"gaze: expected a text CSV of t,x,y rows, got binary data in {path}"
@@ -355,10 +356,12 @@ def read_gaze_csv(path):
                 raise ValueError
             t = float(cells[0])
             xy = [float(c) if c else np.nan for c in cells[1:]]
+            if np.isnan(xy[0]) != np.isnan(xy[1]) or np.any(np.isinf(xy)):
+                raise ValueError
         except ValueError:
             raise ValueError(
-                f"gaze: expected rows of three numbers t,x,y (s, pixels) in {path}, "
-                f"got {','.join(row)!r} on line {line}"
+                f"gaze: expected rows of three numbers t,x,y (s, pixels; x and y both "
+                f"empty or nan for a blink) in {path}, got {','.join(row)!r} on line {line}"
             ) from None
         rows.append([t, *xy])
     if not rows:

@@ -220,6 +220,8 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
         (["--operator", "jacobs2015", "--encoding", "gamma"], "--encoding"),
         (["--operator", "ward-jnd", "--adaptation-goal", "foveal"], "--adaptation-goal"),
         (["--background-scale", "4"], "--background-scale"),
+        (["--background", "gaussian", "--adaptation-goal", "white_fraction"], "--adaptation-goal"),
+        (["FILE", "--gaze", "GAZE"], "--gaze"),  # pattanaik2000, goal log_average, global
         (["--background", "arithmetic", "--background-scale", "4"], "--background-scale"),
         (["--seed", "4"], "--seed"),
         (["--operator", "schlick1994", "--pixels-per-degree", "20"], "--pixels-per-degree"),
@@ -231,8 +233,10 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
 def test_options_that_would_be_ignored_are_refused(tmp_path, capsys, args, option):
     image = tmp_path / "in.exr"
     io.write_image(image, np.ones((4, 4, 3), np.float32))
+    gaze = tmp_path / "gaze.csv"
+    gaze.write_text("t,x,y\n0,1,1\n")
     builtin = "FILE" not in args
-    args = [str(image) if a == "FILE" else a for a in args]
+    args = [{"FILE": str(image), "GAZE": str(gaze)}.get(a, a) for a in args]
     status, err = _run(capsys, "render", *SMALL * builtin, *args, "--out", "o")
     _assert_one_line_error(status, err, option)
 
@@ -487,3 +491,18 @@ def test_an_interrupted_render_leaves_nothing_and_says_so(tmp_path, signum):
     assert err.strip().splitlines()[-1] == "jaxadapt: interrupted; nothing was written to --out"
     assert "Traceback" not in err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["render", "--seed", "99999999999999999999999"], "--seed"),  # was an OverflowError
+        (["psychometric", "simulate", "--observers", "2", "--seed", "-1"], "--seed"),
+        (["render", "--multiplier", "0"], "--multiplier"),
+        (["render", "--format", "gif"], "--format"),
+    ],
+)
+def test_argument_errors_are_one_line(capsys, argv, option):
+    with pytest.raises(SystemExit) as exit:
+        main(argv)
+    _assert_one_line_error(exit.value.code, capsys.readouterr().err, option, "--help")

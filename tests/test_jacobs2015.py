@@ -559,6 +559,14 @@ def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     path.write_text("1.0,1,1\n0.5,2,2\n")
     with pytest.raises(ValueError, match="increasing"):
         scenes.read_gaze_csv(path)
+    for row in ("0.5,inf,3", "0.5,nan,3", "0.5,,3"):  # not a blink: one coordinate
+        path.write_text(f"t,x,y\n0,1,1\n{row}\n")
+        with pytest.raises(ValueError, match=f"got '{row}' on line 3"):
+            scenes.read_gaze_csv(path)
+    # A spreadsheet's "CSV UTF-8": a byte-order mark and CRLF line ends.
+    path.write_bytes(b"\xef\xbb\xbft,x,y\r\n0,10,20\r\n")
+    t, xy = scenes.read_gaze_csv(path)
+    assert t.tolist() == [0.0] and xy.tolist() == [[10.0, 20.0]]
 
 
 def test_jacobs_scenes_are_registered_and_calibrated():
