@@ -556,6 +556,20 @@ def _numeric_fields(params):
     )
 
 
+def _not_fittable(params, name):
+    """Why the numeric field ``name`` of ``params`` cannot be fitted, or ``""``
+    if it is not a field or not a number (a choice such as a string)."""
+    field = next((f for f in dataclasses.fields(params) if f.name == name), None)
+    value = getattr(params, name, None)
+    if field is None or not eqx.is_array_like(value):
+        return ""
+    if field.metadata.get("static", False):
+        return "is a static field"
+    if isinstance(value, jax.Array | np.ndarray | np.generic):
+        return f"holds {value.dtype} values"
+    return f"holds a Python {type(value).__name__}"
+
+
 def _spec(params, names, bounds):
     """Validate ``names`` and ``bounds``; return the static spec."""
     valid = _numeric_fields(params)
@@ -563,13 +577,14 @@ def _spec(params, names, bounds):
     if not names:
         raise ValueError(f"names: expected at least one of {valid}, got none")
     unknown = [n for n in names if n not in valid]
-    integer = [n for n in unknown if eqx.is_array_like(getattr(params, n, None))]
-    if integer:
-        raise ValueError(
-            f"names: {', '.join(map(repr, integer))} of {type(params).__name__} "
-            f"{'holds' if len(integer) == 1 else 'hold'} integers; a fitted field must "
-            f"hold floating-point values (1.0, not 1)"
-        )
+    for name in unknown:
+        why = _not_fittable(params, name)
+        if why:
+            raise ValueError(
+                f"names: {name!r} of {type(params).__name__} {why}; a fitted field must "
+                "hold a JAX floating-point array (e.g. eqx.field(converter=jnp.asarray) and "
+                "1.0, not 1)"
+            )
     if unknown:
         raise ValueError(
             f"names: {', '.join(map(repr, unknown))} "

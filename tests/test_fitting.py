@@ -339,9 +339,16 @@ def test_bad_input_is_named():
     class Counts(eqx.Module):
         rate: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
         n: jax.Array = eqx.field(default=3, converter=jnp.asarray)
+        plain: float = 1.0
+        fixed: float = eqx.field(default=1.0, static=True)
 
-    with pytest.raises(ValueError, match=r"names: 'n' of Counts holds integers.*1\.0, not 1"):
-        fitting.fit(lambda p, x: p.rate * p.n * x, Counts(), ("rate", "n"), np.ones(3), args=1.0)
+    for name, why in (
+        ("n", "holds int(32|64) values"),
+        ("plain", "holds a Python float"),
+        ("fixed", "is a static field"),
+    ):
+        with pytest.raises(ValueError, match=rf"names: '{name}' of Counts {why}; .*1\.0, not 1"):
+            fitting.fit(lambda p, x: p.rate * x, Counts(), ("rate", name), np.ones(3), args=1.0)
 
 
 # -- the mechanism on a small model -------------------------------------------

@@ -253,6 +253,7 @@ def test_padding_groups_and_optional_group_columns(tmp_path):
             "missing column 'n_total'",
         ),
         ([HEADER + ["n_yes"], ["p", "c", 0, 1, 1]], "either a 'response' column"),
+        ([HEADER + ["n_total"], ["p", "c", 0, 1, 9]], "either a 'response' column"),
         (
             [HEADER, ["p", "c", 0.1, 1], ["p", "c", "bright", 1]],
             r"row 3: column 'level': .*a number",

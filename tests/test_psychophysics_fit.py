@@ -201,8 +201,9 @@ def test_bad_input_is_named():
         F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, method="bca")
     import equinox as eqx
 
-    with pytest.raises(eqx.EquinoxRuntimeError, match="n_yes, n_total: expected 0 <= n_yes"):
-        F.fit(X, np.array([1, 2, 31, 4, 5]), 30)
+    for n_yes, n_total in ((np.array([1, 2, 31, 4, 5]), 30), (np.zeros(5), [30] * 4 + [np.inf])):
+        with pytest.raises(eqx.EquinoxRuntimeError, match="n_yes, n_total: expected finite 0 <="):
+            F.fit(X, n_yes, np.asarray(n_total, float))
     with pytest.raises(eqx.EquinoxRuntimeError, match="levels: expected finite"):
         F.fit(np.r_[X[:4], np.nan], np.zeros(5), 30)
 

@@ -168,6 +168,13 @@ def test_exact_tables_have_limits_and_methods_are_named():
         ranksum(big[:200], big[200:], method="exact")
     with pytest.raises(ValueError, match="method: expected 'auto', 'exact' or 'asymptotic'"):
         ranksum(big[:3], big[3:6], method="permutation")
+    # NaN where valid is refused (it would rank as the largest value); where
+    # masked it is left out. Lists are taken as arrays.
+    with pytest.raises(Exception, match="x, y: expected finite values where valid"):
+        ranksum(jnp.array([1.0, 2.0, jnp.nan]), jnp.array([0.5, 3.0, 4.0]))
+    masked = ranksum(jnp.array([1.0, 2.0, jnp.nan]), [0.5, 3.0, 4.0], x_mask=[True, True, False])
+    ref = scipy.stats.mannwhitneyu([1.0, 2.0], [0.5, 3.0, 4.0])
+    assert float(masked.p) == pytest.approx(ref.pvalue, rel=1e-12)
     # Masked groups padded past the table's limit: auto falls back to the
     # approximation for every element and says so.
     x, y = jnp.linspace(0, 1, 9), jnp.linspace(2, 3, 800)

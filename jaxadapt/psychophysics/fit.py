@@ -606,8 +606,8 @@ def _check(levels, n_yes, n_total, guess, lapse):
     levels = eqx.error_if(
         levels, ~jnp.all(jnp.isfinite(levels)), "levels: expected finite log10 levels"
     )
-    bad = ~jnp.all((n_total >= 0) & (n_yes >= 0) & (n_yes <= n_total))
-    n_yes = eqx.error_if(n_yes, bad, "n_yes, n_total: expected 0 <= n_yes <= n_total")
+    bad = ~jnp.all(jnp.isfinite(n_total) & (n_total >= 0) & (n_yes >= 0) & (n_yes <= n_total))
+    n_yes = eqx.error_if(n_yes, bad, "n_yes, n_total: expected finite 0 <= n_yes <= n_total")
     bad = jnp.any((guess.low < 0) | (lapse.low < 0) | (guess.high + lapse.high >= 1))
     guess = eqx.error_if(guess, bad, "guess, lapse: expected rates >= 0 with guess + lapse < 1")
     return levels, n_yes, n_total, guess, lapse

@@ -38,6 +38,7 @@ import functools
 from functools import partial
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -105,7 +106,9 @@ class Comparison(NamedTuple):
 
 
 def _mask(x, mask):
-    return jnp.ones(jnp.shape(x), bool) if mask is None else jnp.broadcast_to(mask, jnp.shape(x))
+    if mask is None:
+        return jnp.ones(jnp.shape(x), bool)
+    return jnp.broadcast_to(jnp.asarray(mask, bool), jnp.shape(x))
 
 
 def median(x, mask=None):
@@ -306,9 +309,12 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     """
     if method not in ("auto", "exact", "asymptotic"):
         raise ValueError(f"method: expected 'auto', 'exact' or 'asymptotic', got {method!r}")
+    x, y = jnp.asarray(x), jnp.asarray(y)
     dtype = jnp.result_type(x, y, float)
-    x, y = jnp.asarray(x, dtype), jnp.asarray(y, dtype)
+    x, y = x.astype(dtype), y.astype(dtype)
     x_valid, y_valid = _mask(x, x_mask), _mask(y, y_mask)
+    missing = ~jnp.all(jnp.isfinite(x) | ~x_valid) | ~jnp.all(jnp.isfinite(y) | ~y_valid)
+    x = eqx.error_if(x, missing, "x, y: expected finite values where valid (mask out the others)")
     batch = jnp.broadcast_shapes(x.shape[:-1], y.shape[:-1])
     x, x_valid = (jnp.broadcast_to(a, batch + x.shape[-1:]) for a in (x, x_valid))
     y, y_valid = (jnp.broadcast_to(a, batch + y.shape[-1:]) for a in (y, y_valid))

@@ -130,7 +130,7 @@ def _header(path, header):
     repeated = [c for c in dict.fromkeys(columns) if c and columns.count(c) > 1]
     if repeated:
         raise ValueError(f"{path}: expected each column once, got '{repeated[0]}' more than once")
-    if "response" in columns and "n_yes" in columns:
+    if "response" in columns and ("n_yes" in columns or "n_total" in columns):
         raise ValueError(
             f"{path}: expected either a 'response' column or 'n_yes' and 'n_total' "
             f"columns, got both"
