@@ -85,6 +85,12 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"jaxadapt: error: {message} (see {self.prog} --help)\n")
 
 
+def _folder(text):
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder, got an empty path")
+    return Path(text)
+
+
 #: Largest seed: JAX's keys take a 64-bit signed integer.
 MAX_SEED = 2**63 - 1
 
@@ -219,7 +225,7 @@ def build_parser():
     )
     render.add_argument(
         "--out",
-        type=Path,
+        type=_folder,
         default=Path("out"),
         help="output folder (default: ./out); what an earlier render wrote there (listed in "
         "its .jaxadapt-render) is replaced, other files and the inputs are left alone",
@@ -267,7 +273,9 @@ def build_parser():
         help="columns participant, condition, level (log10 relative to the standard), "
         "response (1: test brighter); or level, n_yes, n_total",
     )
-    fit.add_argument("--out", type=Path, default=Path("out"), help="output folder (default ./out)")
+    fit.add_argument(
+        "--out", type=_folder, default=Path("out"), help="output folder (default ./out)"
+    )
     fit.add_argument(
         "--resamples",
         type=int,
@@ -313,7 +321,7 @@ def build_parser():
         "--seed", type=_seed, default=0, help="seed of the simulation (default 0)"
     )
     simulate.add_argument(
-        "--out", type=Path, default=Path("out"), help="output folder (default ./out)"
+        "--out", type=_folder, default=Path("out"), help="output folder (default ./out)"
     )
     return parser
 
@@ -359,8 +367,8 @@ def _staged(out, replaces=None, keep=()):
     for path in sorted(keep):
         if replaces is not None and path.parent == out.resolve() and replaces.fullmatch(path.name):
             raise UsageError(
-                f"{path}: an input in --out with the name of an output of this command, "
-                "which would write over it; choose another --out"
+                f"{path}: an input in --out named as this command's outputs, which a run "
+                "there may write over or remove; choose another --out"
             )
     made = next((p for p in [*reversed(out.parents), out] if not p.exists()), None)
 
@@ -368,6 +376,8 @@ def _staged(out, replaces=None, keep=()):
         if made is not None:
             shutil.rmtree(made, ignore_errors=True)
 
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: expected a folder, got the file {out}")
     try:
         out.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
@@ -566,10 +576,14 @@ def render(args, console):
         sheet = figures.contact_sheet(np.stack(contact))
         io.write_image(staging / "contact_sheet.png", sheet, encoding)
         plot(staging / "adaptation.png", table)
-        written = len(list(staging.iterdir()))
+        names = sorted(path.name for path in staging.iterdir())
+    frame_files = [name for name in names if name.startswith("frame_")]
+    others = [name for name in names if not name.startswith("frame_")]
+    if frame_files:
+        others.append(f"{len(frame_files)} frame file{'s' * (len(frame_files) > 1)}")
     console.print(
-        f"wrote {written} files to {out}/ (diagnostics.csv, contact_sheet.png, "
-        f"adaptation.png, {T} frames)"
+        f"wrote {len(names)} files to {out}/ ({', '.join(others)}) for {T} frame{'s' * (T > 1)}",
+        soft_wrap=True,
     )
 
 
@@ -657,7 +671,7 @@ def psychometric_fit(args, console):
             f"{row['median_control']:+.3f} log units, rank-sum p = {row['p']:.3g} "
             f"(n = {row['n']}, {row['n_control']})"
         )
-    console.print(f"wrote {', '.join(written)} to {out}/")
+    console.print(f"wrote {', '.join(written)} to {out}/", soft_wrap=True)
 
 
 def _weights(items, cues):

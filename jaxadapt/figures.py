@@ -15,19 +15,25 @@ from matplotlib.figure import Figure
 from jaxadapt.operators.pattanaik2000 import CURVE_LOG10_LUMINANCE
 
 
+def _marker(t):
+    """A point marker for a time series of one frame, where a line draws nothing."""
+    return "o" if len(t) == 1 else None
+
+
 def plot_adaptation(path, diag, title):
     """Adaptation state over time and the scene-to-display curve at a few times."""
     t = diag["t"]
+    marker = _marker(t)
     fig = Figure(figsize=(15, 4.2))
     axes = fig.subplots(1, 3)
     ax = axes[0]
     for name, style in (("G_cone", "C1:"), ("A_cone", "C1-"), ("G_rod", "C0:"), ("A_rod", "C0-")):
-        ax.semilogy(t, diag[name], style, label=name)
+        ax.semilogy(t, diag[name], style, marker=marker, label=name)
     ax.set(xlabel="time (s)", ylabel="cd/m$^2$", title="goal G and neural adaptation A")
     ax.legend()
     ax = axes[1]
-    ax.semilogy(t, diag["B_cone"], "C1", label="B_cone")
-    ax.semilogy(t, diag["B_rod"], "C0", label="B_rod")
+    ax.semilogy(t, diag["B_cone"], "C1", marker=marker, label="B_cone")
+    ax.semilogy(t, diag["B_rod"], "C0", marker=marker, label="B_rod")
     ax.set(xlabel="time (s)", ylabel="unbleached fraction", title="pigment B")
     ax.legend()
     ax = axes[2]
@@ -77,7 +83,7 @@ def plot_columns(path, table, title):
     for ax, name in zip(axes, columns, strict=False):
         column = table[name]
         wide = np.all(column > 0) and column.max() > 100 * column.min()
-        ax.plot(t, column)
+        ax.plot(t, column, marker=_marker(t))
         ax.set(xlabel="time (s)", title=name, yscale="log" if wide else "linear")
     for ax in axes[len(columns) :]:
         ax.set_axis_off()

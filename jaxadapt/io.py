@@ -57,7 +57,7 @@ def read_hdr(path):
     config.attribute("pnm:pfmflip", 1)
     image = oiio.ImageInput.open(str(path), config)
     if image is None:
-        raise ValueError(f"{path}: cannot read as an image ({oiio.geterror().strip()})")
+        raise ValueError(f"{path}: cannot read as an image ({_one_line(oiio.geterror())})")
     try:
         spec = image.spec()
         kind = str(spec.format)
@@ -69,7 +69,7 @@ def read_hdr(path):
             )
         pixels = image.read_image(format="float")
         if pixels is None:
-            raise ValueError(f"{path}: cannot read pixels ({image.geterror().strip()})")
+            raise ValueError(f"{path}: cannot read pixels ({_one_line(image.geterror())})")
     finally:
         image.close()
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
@@ -101,6 +101,11 @@ def rgb_channels(path, names):
     raise ValueError(
         f"{path}: expected R, G and B channels or a luminance Y, got channels {', '.join(names)}"
     )
+
+
+def _one_line(message):
+    """An OpenImageIO error message, whose lines may be several, as one line."""
+    return "; ".join(line.strip() for line in message.splitlines() if line.strip())
 
 
 def radiance_exposure(path):
@@ -172,7 +177,7 @@ def write_image(path, pixels, encoding="srgb"):
         if kind == "uint8":
             spec.attribute("oiio:ColorSpace", COLOUR_SPACES[encoding])
         if not (out.open(tmp, spec) and out.write_image(pixels)):
-            msg = out.geterror().strip()
+            msg = _one_line(out.geterror())
             out.close()
             raise OSError(f"{path}: cannot write ({msg})")
         out.close()

@@ -139,7 +139,14 @@ def test_unwritable_output(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     status, err = _run(capsys, "render", "--scene", "title-step", *SMALL, "--out", str(blocker))
-    _assert_one_line_error(status, err, "--out", str(blocker))
+    _assert_one_line_error(status, err, "--out: expected a folder, got the file", str(blocker))
+    status, err = _run(
+        capsys, "render", "--scene", "title-step", *SMALL, "--out", str(blocker / "x")
+    )
+    _assert_one_line_error(status, err, "--out: cannot write to", str(blocker / "x"))
+    with pytest.raises(SystemExit) as exit:  # an empty path would be the current folder
+        main(["render", "--out", ""])
+    _assert_one_line_error(exit.value.code, capsys.readouterr().err, "--out", "empty path")
 
 
 def test_a_sequence_shorter_than_one_frame_is_refused(tmp_path, capsys):
@@ -183,7 +190,7 @@ def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write
     inputs = [f"frame_{k:05d}.exr" for k in range(3)]
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     status, err = _run(capsys, "render", *inputs, "--out", ".", "--format", "exr")
-    _assert_one_line_error(status, err, "frame_00000.exr", "would write over it")
+    _assert_one_line_error(status, err, "frame_00000.exr", "may write over")
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     renamed = [f"scene_{k}.exr" for k in range(3)]
     for old, new in zip(inputs, renamed, strict=True):
