@@ -676,13 +676,16 @@ def psychometric_fit(args, console):
 
 def _weights(items, cues):
     """``--weight CUE=W`` options as a weight per cue (0 where not given)."""
-    weights = dict.fromkeys(cues, 0.0)
+    weights, given = dict.fromkeys(cues, 0.0), set()
     for item in items:
         name, _, value = item.partition("=")
         if name.strip() not in weights:
             raise UsageError(
                 f"--weight: expected CUE=W with CUE one of {', '.join(cues)}, got {item!r}"
             )
+        if name.strip() in given:
+            raise UsageError(f"--weight: expected each cue once, got {name.strip()} again")
+        given.add(name.strip())
         try:
             weights[name.strip()] = float(value)
         except ValueError:

@@ -108,7 +108,9 @@ def plot_psychometric(path, groups, table, columns=4):
     conditions = list(dict.fromkeys(groups.condition))
     ncols = min(columns, len(participants))
     nrows = -(-len(participants) // ncols)
-    fig = Figure(figsize=(3.2 * ncols, 2.6 * nrows + 0.5))
+    # Wide enough for the title with one participant; the constrained
+    # layout keeps the title clear of the panels' titles with many.
+    fig = Figure(figsize=(max(3.2 * ncols, 6.0), 2.6 * nrows + 0.5), layout="constrained")
     axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
     x = np.linspace(groups.levels.min() - 0.1, groups.levels.max() + 0.1, 200)
     for g, (who, cond) in enumerate(zip(groups.participant, groups.condition, strict=True)):
@@ -124,7 +126,6 @@ def plot_psychometric(path, groups, table, columns=4):
     for ax in axes[len(participants) :]:
         ax.set_axis_off()
     fig.suptitle("proportion 'test brighter' and cumulative-Gaussian fits")
-    fig.tight_layout()
     fig.savefig(path, dpi=100)
 
 

@@ -466,6 +466,19 @@ def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
         (["--protocol", "mesopic", "--observers", "0"], ["--observers", "0"]),
         (["--protocol", "mesopic", "--observers", "3", "--weight", "glow=1"], ["--weight"]),
         (["--protocol", "mesopic", "--observers", "3", "--weight", "blur=x"], ["--weight"]),
+        (
+            [
+                "--protocol",
+                "mesopic",
+                "--observers",
+                "3",
+                "--weight",
+                "blur=1",
+                "--weight",
+                "blur=2",
+            ],
+            ["--weight", "blur again"],
+        ),
     ],
 )
 def test_psychometric_simulate_bad_input(tmp_path, capsys, args, words):
