@@ -134,7 +134,7 @@ def from_files(paths, fps, multiplier=1.0):
     centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
     T = len(paths)
     return Source(
-        "files",
+        paths[0].name if T == 1 else f"{paths[0].name} to {paths[-1].name} ({T} files)",
         np.arange(T) / fps,
         np.full(T, 1.0 / fps),
         lambda idx: np.stack([read(i) for i in idx]),
