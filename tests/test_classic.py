@@ -260,10 +260,16 @@ def test_float32_in_float32_out(name):
     np.testing.assert_allclose(out, reference, rtol=1e-4, atol=1e-6)
 
 
-def test_zero_and_negative_pixels_count_as_the_floor():
-    rgb = jnp.asarray(hdr_frame()).at[0, 0].set(0.0).at[0, 1].set(-1.0)
-    out = np.asarray(classic.tone_map(classic.Photographic(), rgb))
-    assert np.all(np.isfinite(out)) and np.all(out[0, :2] == 0.0)
+@pytest.mark.parametrize("name", CURVES)
+def test_zero_and_negative_pixels_count_as_the_floor(name):
+    # As a grey pixel at the floor: at the curve's black level, which is not
+    # 0 for Tumblin's (D/k^2) or Ward's; black pixels used to give 0 beside it.
+    floor = np.full(3, goal.LUMINANCE_FLOOR)
+    rgb = jnp.asarray(hdr_frame()).at[0, 0].set(0.0).at[0, 1].set(-1.0).at[0, 2].set(floor)
+    out = np.asarray(classic.tone_map(classic.TONE_CURVES[name](), rgb))
+    assert np.all(np.isfinite(out))
+    np.testing.assert_array_equal(out[0, 0], out[0, 2])
+    np.testing.assert_array_equal(out[0, 1], out[0, 2])
 
 
 # -- bad input ----------------------------------------------------------------------

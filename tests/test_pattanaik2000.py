@@ -107,6 +107,21 @@ def test_steady_state_of_a_long_constant_scene_is_the_static_model():
     assert float(s.B_rod) == pytest.approx(float(bleach_rod(float(diag.G_rod[0]))), rel=1e-6)
 
 
+def test_a_viewer_adapted_to_darkness_is_adapted_to_the_floor():
+    # adaptation=0 (fully dark-adapted): sigma of Eqs 4-5 is 0/0 there, and
+    # the first frame of a 10 cd/m2 field was display black instead of a
+    # dazzle. It counts as the luminance floor, as the goals of frames do.
+    frames = jnp.full((2, 3, 3, 3), 10.0)
+    dark, floor = (op.init(P, None, adaptation=a) for a in (0.0, 1e-6))
+    out_dark, diag = op.run(P, frames, 0.03, state=dark)
+    out_floor, _ = op.run(P, frames, 0.03, state=floor)
+    np.testing.assert_array_equal(out_dark, out_floor)
+    assert np.all(np.isfinite(np.asarray(diag.sigma_cone))) and float(out_dark[0].min()) > 0.99
+    for bad in (-1.0, np.nan):
+        with pytest.raises(ValueError, match="adaptation: expected a finite luminance >= 0"):
+            op.init(P, None, adaptation=bad)
+
+
 def test_title_step_whites_out_then_recovers():
     scene = scenes.title_step(48, 32, duration=1.5)
     params = op.Params(goal=scene.goal)

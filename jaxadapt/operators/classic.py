@@ -383,8 +383,11 @@ def tone_map(params, frame, background=None):
         The curve and its parameters (:data:`TONE_CURVES`).
     frame : array, shape (..., H, W, 3)
         Linear BT.709 RGB, cd/m2, finite; leading axes are frames or batches.
-        Luminances below :data:`~jaxadapt.operators.goal.LUMINANCE_FLOOR`
-        (zero, negative) count as the floor.
+        A pixel whose luminance is below
+        :data:`~jaxadapt.operators.goal.LUMINANCE_FLOOR` (zero, negative)
+        counts as a grey of the floor's luminance, so that black is shown at
+        the curve's black level (Tumblin's ``D/k^2``, Ward's display
+        threshold), as the floor itself is, not at 0 beside it.
     background : None, array or callable
         Background luminance ``I_b``, cd/m2: ``None`` for the log average
         of each image (global), an array broadcastable to ``(..., H, W)``,
@@ -406,6 +409,8 @@ def tone_map(params, frame, background=None):
     frame = check_rgb(frame, "frame", "(..., H, W, 3)", min_ndim=3)
     frame = eqx.error_if(frame, ~jnp.all(jnp.isfinite(frame)), "frame: expected finite values")
     params = as_dtype(params, frame.dtype)
+    dark = photopic_luminance(frame) < LUMINANCE_FLOOR
+    frame = jnp.where(dark[..., None], jnp.asarray(LUMINANCE_FLOOR, frame.dtype), frame)
     L = jnp.maximum(photopic_luminance(frame), LUMINANCE_FLOOR)
     I_b = jnp.maximum(_background(L, background), LUMINANCE_FLOOR)
     Y = params.curve(L, I_b)

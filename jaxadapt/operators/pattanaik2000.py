@@ -609,8 +609,11 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         The operator is deterministic.
     adaptation : float, optional
         Adapt instead to this luminance (cd/m2) for rods and cones, e.g.
-        0.01 for the moonlit start of the title-page sequence. With a local
-        background the state is then uniform until the first frame.
+        0.01 for the moonlit start of the title-page sequence; at least
+        ``goal.LUMINANCE_FLOOR`` (1e-6) counts, as for the goals of frames,
+        so that 0 is a fully dark-adapted viewer (at 0 itself the
+        semi-saturations of Eqs 4-5 are 0/0). With a local background the
+        state is then uniform until the first frame.
 
     Returns
     -------
@@ -622,7 +625,13 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     if adaptation is not None:
         floating = first_frame is not None and jnp.issubdtype(first_frame.dtype, jnp.floating)
         dtype = first_frame.dtype if floating else jnp.result_type(float)
-        A = jnp.asarray(adaptation, dtype=dtype)
+        check_value(
+            "adaptation",
+            adaptation,
+            lambda v: np.isfinite(v) & (v >= 0),
+            "a finite luminance >= 0 (cd/m2)",
+        )
+        A = jnp.maximum(jnp.asarray(adaptation, dtype=dtype), goals.LUMINANCE_FLOOR)
         return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
     params = as_dtype(params, first_frame.dtype)

@@ -154,9 +154,8 @@ class Fit(NamedTuple):
         ``2 (loglik_saturated - loglik)``.
     converged : array of bool
         Whether the optimiser met its tolerance within ``max_steps`` and a
-        Newton step from the estimate (exact Hessian, :func:`_newton_decrement`)
-        would move it by at most ``jaxadapt.fitting.NEWTON_STEP`` (0.1)
-        standard errors.
+        Newton step from the estimate (exact Hessian) would move it by at
+        most ``jaxadapt.fitting.NEWTON_STEP`` (0.1) standard errors.
     flags : array of int
         Bit flags, see the module notes and :func:`flag_names`.
     """
@@ -433,8 +432,8 @@ class _BFGS(optx.AbstractBFGS):
     creeps by steps far below the standard errors yet above the parameter
     tolerance; this rule stops it there. BFGS's estimate of ``H^-1`` can be
     poor along such a valley, so :func:`_fit_one` checks the stop with the
-    exact Hessian (:func:`_newton_decrement`). The probit likelihood alone
-    is strictly convex and uses ``decrement_tol = 0``.
+    exact Hessian. The probit likelihood alone is strictly convex and uses
+    ``decrement_tol = 0``.
     """
 
     rtol: float
@@ -469,22 +468,6 @@ class _BFGS(optx.AbstractBFGS):
         info = state.f_info
         decrement = self.trials * jnp.dot(info.grad, info.hessian_inv.mv(info.grad))
         return done | ((state.num_accepted_steps > 0) & (decrement <= self.decrement_tol)), result
-
-
-def _newton_decrement(f, y):
-    """``sum_i (q_i' g)^2 / |lambda_i|`` of ``f`` at ``y``, with ``g`` its
-    gradient and ``lambda_i, q_i`` the eigenvalues and eigenvectors of its
-    Hessian: ``g' H^-1 g`` where ``H`` is positive definite, twice the gain
-    of a Newton step, and a step's gain along each direction of negative
-    curvature too (saddle-free Newton; Dauphin et al. 2014). For a negative
-    log-likelihood it is the squared length of a Newton step in standard
-    errors (the observed information's). ``inf`` where ``H`` is singular
-    and ``g`` is not 0 in its null space."""
-    gradient, hessian = jax.grad(f)(y), jax.hessian(f)(y)
-    curvature, directions = jnp.linalg.eigh(hessian)
-    along = directions.T @ gradient
-    terms = jnp.where(along == 0, 0.0, along**2 / jnp.abs(curvature))
-    return jnp.where(jnp.all(jnp.isfinite(terms)), jnp.sum(terms), jnp.inf)
 
 
 def _inverse_if_positive_definite(H):
@@ -533,13 +516,17 @@ def _fit_one(x, k, n, guess, lapse, max_steps):
     data = _prepare(x, k, n)
     dtype = x.dtype
     theta, converged = _solve(data, guess, lapse, max_steps)
+    (a0, a1), log_guess, log_lapse = _unpack(theta, guess, lapse)
+    inverse = jnp.linalg.inv(jax.hessian(_objective)(theta, data, guess, lapse))
+    cov_a = inverse[:2, :2]
     # The solver's tolerances can be met short of the optimum in the flat
     # valley of fitted rates (_BFGS): converged only where a Newton step
-    # would move the estimates by at most NEWTON_STEP standard errors.
-    decrement = _newton_decrement(lambda t: _objective(t, data, guess, lapse), theta)
-    converged = converged & (decrement <= NEWTON_STEP**2)
-    (a0, a1), log_guess, log_lapse = _unpack(theta, guess, lapse)
-    cov_a = jnp.linalg.inv(jax.hessian(_objective)(theta, data, guess, lapse))[:2, :2]
+    # would move the estimates by at most NEWTON_STEP standard errors, the
+    # Newton decrement |g' H^-1 g| with the exact Hessian (its magnitude:
+    # along a direction of numerically zero, negative curvature, where the
+    # likelihood is flat, its sign is rounding).
+    gradient = jax.grad(_objective)(theta, data, guess, lapse)
+    converged = converged & (jnp.abs(gradient @ inverse @ gradient) <= NEWTON_STEP**2)
 
     flat = jnp.abs(a1) < MIN_SLOPE
     a1_safe = jnp.where(flat, MIN_SLOPE, a1)  # flat counts as increasing (module notes)
