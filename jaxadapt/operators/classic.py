@@ -409,9 +409,11 @@ def tone_map(params, frame, background=None):
     frame = check_rgb(frame, "frame", "(..., H, W, 3)", min_ndim=3)
     frame = eqx.error_if(frame, ~jnp.all(jnp.isfinite(frame)), "frame: expected finite values")
     params = as_dtype(params, frame.dtype)
-    dark = photopic_luminance(frame) < LUMINANCE_FLOOR
+    # A grey of the floor's luminance has that luminance: L needs no second pass.
+    L = photopic_luminance(frame)
+    dark = L < LUMINANCE_FLOOR
     frame = jnp.where(dark[..., None], jnp.asarray(LUMINANCE_FLOOR, frame.dtype), frame)
-    L = jnp.maximum(photopic_luminance(frame), LUMINANCE_FLOOR)
+    L = jnp.where(dark, LUMINANCE_FLOOR, L)
     I_b = jnp.maximum(_background(L, background), LUMINANCE_FLOOR)
     Y = params.curve(L, I_b)
     return jnp.clip(frame * (Y / L)[..., None], 0.0, 1.0)
