@@ -10,6 +10,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.stats import mannwhitneyu
 
 from jaxadapt import io, runtime
 from jaxadapt.cli import _message, main
@@ -371,6 +372,31 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert len(fits) == 12 and all(f["converged"] == "true" for f in fits)
     (test,) = list(csv.DictReader(open(out / "group_test.csv")))
     assert float(test["shift"]) == pytest.approx(0.15, abs=0.06) and float(test["p"]) < 0.01
+    pses = {
+        c: [float(f["pse"]) for f in fits if f["condition"] == c]
+        for c in ("manipulated", "control")
+    }
+    # Groups of 6: "auto" is exact (SciPy's rule); --ranksum asymptotic asks
+    # for the normal approximation. Both as SciPy gives them.
+    for method, exact in (("auto", "true"), ("asymptotic", "false")):
+        if method != "auto":
+            status, err = _run(
+                capsys,
+                "psychometric",
+                "fit",
+                str(trials),
+                "--resamples",
+                "0",
+                "--out",
+                str(out),
+                "--ranksum",
+                method,
+            )
+            assert status == 0, err
+            (test,) = list(csv.DictReader(open(out / "group_test.csv")))
+        scipy_method = "exact" if exact == "true" else "asymptotic"
+        expected = mannwhitneyu(pses["manipulated"], pses["control"], method=scipy_method).pvalue
+        assert test["p_exact"] == exact and float(test["p"]) == pytest.approx(expected, rel=1e-5)
     assert (out / "psychometric.png").stat().st_size > 0 and (out / "pse.png").exists()
     status, err = _run(capsys, "psychometric", "fit", str(trials), "--control", "Control")
     _assert_one_line_error(status, err, "--control", "control, manipulated", "'Control'")
