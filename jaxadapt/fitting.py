@@ -93,7 +93,7 @@ order of ``names`` (each field raveled).
 
 The information matrix is inverted through the eigen-decomposition of its
 unit-diagonal scaling. A parameter is *not identified* when its sensitivity
-(the square root of its diagonal) is below ``sqrt(eps)`` of the largest one,
+(the square root of its diagonal) is below ``eps`` of the largest one,
 or when it has weight in a direction whose eigenvalue is below ``sqrt(eps)``
 of the largest (a combination of parameters the data do not pin down, e.g.
 two that only enter as a product). Its standard error is then ``inf``, its
@@ -160,6 +160,10 @@ MAX_STEPS = 256
 #: Largest full (Gauss-)Newton step from the estimate, in standard errors,
 #: of a fit called converged (``Fit.newton_step``).
 NEWTON_STEP = 0.1
+#: A Jacobian column (weighted) shorter than this many roundings of the
+#: weighted prediction, ``ROUNDINGS eps |f|``, is rounding and is set to 0
+#: (:meth:`_Problem.linearised`).
+ROUNDINGS = 64
 #: Solver lanes of a batch (see "Batches" in the module notes): a batch of at
 #: most this many datasets is fitted in one vmapped solve, a larger one
 #: through a queue of this many lanes. On a 2-core CPU, 64 lanes fitted the
@@ -359,11 +363,10 @@ class ScaledDampedNewtonDescent(optx.AbstractDescent):
     The step ``p`` minimises ``|r + J p|^2 + lambda |D p|^2``, that is
     ``(J' J + lambda D^2) p = -J' r``, with ``D_j`` the largest norm that
     column ``j`` of ``J`` has had so far (1 while every column is 0): MINPACK's
-    scaling (``lmder``, ``mode = 1``; Moré 1978, §6). A column shorter than
-    ``sqrt(eps)`` of the longest (a parameter the residuals do not feel, as in
-    the identifiability test of :func:`_information_inverse`) counts as long
-    as the longest: scaled to unit length, its rounding noise would drive
-    the parameter. A parameter in units
+    scaling (``lmder``, ``mode = 1``; Moré 1978, §6). A column that the
+    residuals do not feel (:func:`_felt`) counts as long as the longest:
+    scaled to unit length, its rounding noise would drive the parameter.
+    A parameter in units
     ``c`` times larger has a column, and a ``D_j``, ``c`` times smaller, so
     the steps, and the fit, do not depend on the units of the parameters.
     ``optimistix.DampedNewtonDescent`` damps every parameter by the same
@@ -390,9 +393,7 @@ class ScaledDampedNewtonDescent(optx.AbstractDescent):
     def query(self, y, f_info, state):
         del y
         norms = jnp.linalg.norm(f_info.jac.as_matrix(), axis=0)
-        top = jnp.max(norms)
-        sensitive = norms > jnp.sqrt(jnp.finfo(norms.dtype).eps) * top
-        scale = jnp.maximum(state.scale, jnp.where(sensitive, norms, top))
+        scale = jnp.maximum(state.scale, jnp.where(_felt(norms), norms, jnp.max(norms)))
         return _ScaledDescentState(f_info, scale)
 
     def step(self, step_size, state):
@@ -623,6 +624,24 @@ def _spec(params, names, bounds):
 # -- one dataset --------------------------------------------------------------
 
 
+def _felt(norms):
+    """Which parameters the residuals feel, from the norms of their Jacobian
+    columns (or the square roots of an information matrix's diagonal): those
+    longer than ``eps`` of the longest.
+
+    A shorter column is at the rounding of the longest's effect (a derivative
+    that is 0 in exact arithmetic, left by a rounding) and identifies
+    nothing. Below that, the ratio of two columns does not matter: the
+    information matrix scaled to a unit diagonal (:func:`_information_inverse`)
+    is accurate to about ``m eps`` in every entry whatever the ratio, as
+    is MINPACK's QR step. (Against ``sqrt(eps)`` of the longest, the columns
+    of ``a`` and ``tau`` of ``a exp(-t / tau) + c`` with ``c = 1e8``, fitted
+    in ``log c``, were 3e-8 of ``c``'s: the fit did not move them, and
+    called them not identified.)
+    """
+    return norms > jnp.finfo(norms.dtype).eps * jnp.max(norms)
+
+
 def _information_inverse(info):
     """Covariance from an information matrix, and which parameters it identifies.
 
@@ -638,7 +657,7 @@ def _information_inverse(info):
     finite = jnp.all(jnp.isfinite(info), axis=1) & jnp.all(jnp.isfinite(info), axis=0)
     info = jnp.where(finite[:, None] & finite[None, :], 0.5 * (info + info.T), 0.0)
     d = jnp.sqrt(jnp.maximum(jnp.diagonal(info), 0.0))
-    sensitive = d > jnp.sqrt(eps) * jnp.max(d)
+    sensitive = _felt(d)
     d_safe = jnp.where(sensitive, d, 1.0)
     C = jnp.where(sensitive[:, None] & sensitive[None, :], info / (d_safe[:, None] * d_safe), 0.0)
     lam, V = jnp.linalg.eigh(C)
@@ -764,10 +783,23 @@ class _Problem(eqx.Module):
     def linearised(self, u, obs):
         """``(J, r, f, F)``: the Jacobian of the weighted residuals (``sqrt(w) F``,
         0 in masked rows), the residuals, the prediction and its Jacobian
-        (:meth:`jacobian`) at ``u``."""
+        (:meth:`jacobian`) at ``u``.
+
+        A column of ``J`` shorter than :data:`ROUNDINGS` roundings of the
+        weighted prediction, ``|J_j| <= ROUNDINGS eps |sqrt(w) f|``, is set to
+        0 (in ``J`` and ``F``): a parameter whose effect on the model is 0 in
+        exact arithmetic leaves a column of its rounding (``t0`` on a field
+        where ``A = G`` throughout: 0.07 roundings in float64), which would
+        otherwise steer the solver and give a finite standard error. The
+        prediction's scale, not the longest column's, is what a column's
+        rounding is relative to: ``a`` of ``a exp(-t / b) + c`` on ``c =
+        1e8`` has a column 3e-8 of ``c``'s and is well identified.
+        """
         F, f = self.jacobian(u)
         J = jax.vmap(lambda column: self.weigh(column.reshape(f.shape), obs), 1, 1)(F)
-        return J, self.weigh(f - obs[0], obs), f, F
+        rounding = ROUNDINGS * jnp.finfo(f.dtype).eps * jnp.linalg.norm(self.weigh(f, obs))
+        felt = jnp.linalg.norm(J, axis=0) > rounding
+        return jnp.where(felt, J, 0.0), self.weigh(f - obs[0], obs), f, jnp.where(felt, F, 0.0)
 
     def residuals(self, u, obs):
         """``(r, f)``: the weighted residuals and the prediction, whose

@@ -7,9 +7,11 @@ import sys
 import time
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import statsmodels.api as sm
 from scipy.stats import mannwhitneyu
 
 from jaxadapt import io, runtime
@@ -446,6 +448,31 @@ def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
         status, err = _run(capsys, *args, "--out", str(tmp_path / "o"))
         _assert_one_line_error(status, err, "--resamples: expected 0", f"got {resamples}")
     assert not (tmp_path / "o").exists()
+
+
+def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
+    # 3,000 trials a level: in float32 (the command's precision before, as
+    # JAX's default) the log-likelihood was 0.01 off statsmodels' (binomial
+    # terms of 2e4 that cancel), and an all-"no" PSE could fall below the
+    # levels. (The tests run with float64 on: here it is off, as for a user.)
+    levels, n = np.linspace(-0.3, 0.3, 5), 3000
+    k = np.array([300, 900, 1500, 2100, 2700])
+    rows = ["level,n_yes,n_total"] + [f"{x},{y},{n}" for x, y in zip(levels, k, strict=True)]
+    trials = tmp_path / "trials.csv"
+    trials.write_text("\n".join(rows) + "\n")
+    with jax.enable_x64(False):
+        status, err = _run(
+            capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(tmp_path)
+        )
+    assert status == 0, err
+    (row,) = list(csv.DictReader(open(tmp_path / "fits.csv")))
+    glm = sm.GLM(
+        np.c_[k, n - k],
+        sm.add_constant(levels),
+        family=sm.families.Binomial(link=sm.families.links.Probit()),
+    ).fit(tol=1e-14)
+    assert float(row["loglik"]) == pytest.approx(glm.llf, abs=1e-7)
+    assert float(row["b1"]) == pytest.approx(glm.params[1], rel=1e-8)
 
 
 def norm_cdf(z):

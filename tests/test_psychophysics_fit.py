@@ -148,6 +148,22 @@ def test_all_no_places_the_pse_above_the_levels_and_all_yes_below():
         assert np.all(out.flags & F.FLAT)
 
 
+def test_all_no_and_all_yes_take_their_side_in_float32_on_any_design():
+    # In float32 the solver stopped at slopes of up to 0.15 (not below
+    # MIN_SLOPE), whose sign put about a third of such participants on the
+    # wrong side of the levels (the command line's default precision).
+    levels, _, n = _random_datasets(5)
+    n = np.maximum(n, 1)  # every level tested, so that "all the same" is all of them
+    half = B // 2
+    k = np.concatenate([np.zeros_like(n[:half]), n[half:]])
+    with jax.enable_x64(False):
+        out = F.fit(*(jnp.asarray(a, jnp.float32) for a in (levels, k, n)))
+    pse = np.asarray(out.pse, float)
+    assert np.all(pse[:half] > levels[:half].max(axis=1))
+    assert np.all(pse[half:] < levels[half:].min(axis=1))
+    assert np.all(np.asarray(out.flags) & F.ALL_SAME) and np.all(np.asarray(out.b1) == 0)
+
+
 def test_single_level_and_empty_dataset():
     n = np.array([[0, 0, 30, 0, 0], [0, 0, 0, 0, 0]])
     out = _fit(X, np.array([[0, 0, 12, 0, 0], [0, 0, 0, 0, 0]]), n)
