@@ -9,6 +9,7 @@ import contextlib
 import csv
 import math
 import os
+import re
 import tempfile
 import warnings
 from pathlib import Path
@@ -189,38 +190,83 @@ def video_writer(path, fps):
 
     Yields ``send(frames)`` taking ``(K, H, W, 3)`` uint8 chunks; frames of
     odd size are padded by one edge pixel (4:2:0 video needs even sizes).
-    The file appears under ``path`` only when the block completes.
+    The file appears under ``path`` only when the block completes and
+    ffmpeg has exited with success.
+
+    ffmpeg is run here, not through ``imageio_ffmpeg.write_frames``, whose
+    end does not check ffmpeg's exit status: a size that H.264 cannot
+    encode (wider than 16,384 pixels) or a frame rate that ffmpeg cannot
+    parse left a 0-byte video, and the run said it had written it.
+    ffmpeg's messages go to a temporary file (not a pipe: one that filled
+    would stall it) and the first of them, the cause, is raised.
+
+    Raises
+    ------
+    OSError
+        ffmpeg failed: the message names ``path`` and says what ffmpeg said.
     """
+    import subprocess
+    from fractions import Fraction
+
     import imageio_ffmpeg
 
-    with atomic_path(path) as tmp:
-        writer = None
+    with atomic_path(path) as tmp, tempfile.TemporaryFile() as log:
+        process = None
+
+        def fail():
+            with contextlib.suppress(BrokenPipeError):  # its buffer, flushed to no reader
+                process.stdin.close()
+            process.wait()
+            log.seek(0)
+            said = log.read().decode(errors="replace").strip().splitlines()
+            # The first message is the cause, the rest its consequences;
+            # without ffmpeg's "[libx264 @ 0x...]" prefixes.
+            cause = re.sub(r"^(\[[^\]]*\]\s*)+", "", said[0]) if said else "no message"
+            raise OSError(
+                f"{Path(path).name}: ffmpeg could not write the video (exit status "
+                f"{process.returncode}): {cause}"
+            )
 
         def send(frames):
-            nonlocal writer
+            nonlocal process
             frames = np.asarray(frames)
             H, W = frames.shape[1:3]
             frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
-            if writer is None:
-                writer = imageio_ffmpeg.write_frames(
-                    tmp,
-                    (W + W % 2, H + H % 2),
-                    fps=fps,
-                    macro_block_size=1,
-                    ffmpeg_log_level="error",
-                )
+            if process is None:
+                # As imageio-ffmpeg calls it (quality 5: crf 25), the rate a
+                # fraction so that 24000/1001 is not rounded.
+                rate = Fraction(fps).limit_denominator()
+                command = [
+                    imageio_ffmpeg.get_ffmpeg_exe(),
+                    "-y", "-v", "error",
+                    "-f", "rawvideo", "-pix_fmt", "rgb24",
+                    "-s", f"{W + W % 2}x{H + H % 2}", "-r", str(rate), "-i", "-",
+                    "-an", "-vcodec", "libx264",
+                    "-pix_fmt", "yuv420p", "-crf", "25", "-f", "mp4", tmp,
+                ]  # fmt: skip
                 with warnings.catch_warnings():
                     # ffmpeg is started with fork+exec, which is safe under JAX's threads
                     warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
-                    writer.send(None)
-            for frame in frames:
-                writer.send(np.ascontiguousarray(frame))
+                    process = subprocess.Popen(
+                        command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log
+                    )
+            try:
+                process.stdin.write(np.ascontiguousarray(frames).tobytes())
+            except BrokenPipeError:
+                fail()
 
         try:
             yield send
-        finally:
-            if writer is not None:
-                writer.close()
+        except BaseException:
+            if process is not None:
+                process.kill()
+                process.wait()
+            raise
+        if process is not None:
+            with contextlib.suppress(BrokenPipeError):
+                process.stdin.close()
+            if process.wait() != 0:
+                fail()
 
 
 def write_columns(path, table):

@@ -7,6 +7,7 @@ import sys
 import time
 
 import equinox as eqx
+import imageio_ffmpeg
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -33,6 +34,7 @@ def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, 
     names = {p.name for p in out.iterdir()}
     assert {"video.mp4", "contact_sheet.png", "adaptation.png", "diagnostics.csv"} <= names
     assert len([n for n in names if n.startswith("frame_")]) == 10
+    assert imageio_ffmpeg.count_frames_and_secs(str(out / "video.mp4"))[0] == 10
     rows = list(csv.DictReader(open(out / "diagnostics.csv")))
     assert len(rows) == 10 and list(rows[0]) == [
         "t",
@@ -95,6 +97,17 @@ def _assert_one_line_error(status, err, *words):
     assert len(lines) == 1 and lines[0].startswith("jaxadapt: error:"), err
     for w in words:
         assert w in lines[0]
+
+
+def test_a_video_ffmpeg_cannot_write_fails_the_run(tmp_path, capsys):
+    # H.264 is at most 16,384 pixels wide. imageio-ffmpeg's writer does not
+    # check ffmpeg's exit status: the run said it had written video.mp4, of
+    # 0 bytes, with ffmpeg's ten lines of errors on the terminal.
+    out = tmp_path / "out"
+    size = ("--size", "20000x4", "--duration", "0.1", "--format", "mp4")
+    status, err = _run(capsys, "render", "--scene", "title-step", *size, "--out", str(out))
+    _assert_one_line_error(status, err, "video.mp4", "invalid width x height (20000x4)")
+    assert not out.exists()
 
 
 def test_missing_file(tmp_path, capsys, monkeypatch):
