@@ -306,3 +306,28 @@ def test_bad_frames_and_backgrounds_name_the_argument():
         classic.tone_map(params, jnp.ones((4, 5, 3)), jnp.ones((5, 4)))
     with pytest.raises(eqx.EquinoxRuntimeError, match="frame: expected finite"):
         classic.tone_map(params, jnp.ones((4, 5, 3)).at[0, 0, 0].set(jnp.nan))
+
+
+def test_run_and_step_check_frames_and_dt_as_the_other_operators():
+    # run accepted negative pixels (an all-negative frame rendered mid-grey)
+    # and NaN or negative durations (diagnostics dated NaN, -1, -2), gave
+    # JAX's broadcasting error for a dt of the wrong shape, and named a
+    # frame's shape for frames of four channels.
+    p = classic.Params()
+    frames = jnp.full((2, 4, 4, 3), 10.0)
+    for bad, dt, match in (
+        (-frames, 0.1, "frames: expected finite, non-negative"),
+        (frames, jnp.nan, "dt: expected positive"),
+        (frames, -1.0, "dt: expected positive"),
+    ):
+        with pytest.raises(eqx.EquinoxRuntimeError, match=match):
+            classic.run(p, bad, dt)
+    with pytest.raises(ValueError, match=r"^dt: expected a scalar or shape \(2,\)"):
+        classic.run(p, frames, jnp.ones(3))
+    with pytest.raises(ValueError, match=r"^frames: .* got float\d+ of shape \(2, 4, 4, 4\)"):
+        classic.run(p, jnp.ones((2, 4, 4, 4)), 0.1)
+    with pytest.raises(eqx.EquinoxRuntimeError, match="frame: expected finite, non-negative"):
+        classic.step(p, None, -frames[0], 0.1)
+    np.testing.assert_array_equal(
+        classic.step(p, None, frames[0], 0.1)[1], classic.run(p, frames, 0.1)[0][0]
+    )

@@ -506,6 +506,14 @@ def test_bad_luminance_is_named(bad):
         render(op.Params(), flash_frames().at[5, 1, 1, 1].set(bad))
 
 
+@pytest.mark.parametrize("bad", [-5.0, np.nan, np.inf])
+def test_bad_adaptation_luminance_is_named(bad):
+    # NaN filled the state, and every frame after it, with NaN (about 0 on
+    # the display), and -5 ran; the 2000 operator refused both.
+    with pytest.raises(ValueError, match=r"^adaptation: expected a finite luminance >= 0"):
+        op.init(op.Params(), flash_frames()[0], key=KEY, adaptation=bad)
+
+
 def test_bad_dt_and_missing_key_are_named():
     with pytest.raises(Exception, match="dt"):
         render(op.Params(), flash_frames(), dt=0.0)

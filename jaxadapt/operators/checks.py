@@ -59,17 +59,27 @@ def check_frames_and_dt(frames, dt, rank, name="frames"):
     return guard, dt
 
 
+def _computable(dtype):
+    """Whether the operators compute in ``dtype``: float32 or float64.
+
+    Not float16 (nor bfloat16): it holds no luminance above 65,504 cd/m2,
+    and the 2000 operator's powers and semi-saturations in it were off by
+    up to 0.97 of display white (a 5,000 cd/m2 road) with no error.
+    """
+    return jnp.issubdtype(dtype, jnp.floating) and jnp.finfo(dtype).bits >= 32
+
+
 def _frames_dtype(frames, rank, name):
     """The frames' dtype, after checking their rank, channels and dtype."""
     if (
         frames.ndim != rank
         or frames.shape[-1] != 3
         or 0 in frames.shape
-        or not jnp.issubdtype(frames.dtype, jnp.floating)
+        or not _computable(frames.dtype)
     ):
         expected = "(T, H, W, 3)" if rank == 4 else "(H, W, 3)"
         raise ValueError(
-            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2 "
+            f"{name}: expected float32 or float64 linear RGB of shape {expected} in cd/m2 "
             f"(no axis of length 0), got {frames.dtype} of shape {frames.shape}"
         )
     return frames.dtype
@@ -81,9 +91,9 @@ def check_rgb(rgb, name, expected="(..., 3)", min_ndim=1):
     ``ValueError`` naming it otherwise. The per-pixel maps compute in their
     input's dtype, so integer input would give integer nonsense."""
     rgb = jnp.asarray(rgb)
-    if rgb.ndim < min_ndim or rgb.shape[-1:] != (3,) or not jnp.issubdtype(rgb.dtype, jnp.floating):
+    if rgb.ndim < min_ndim or rgb.shape[-1:] != (3,) or not _computable(rgb.dtype):
         raise ValueError(
-            f"{name}: expected floating-point linear RGB of shape {expected} in cd/m2, "
+            f"{name}: expected float32 or float64 linear RGB of shape {expected} in cd/m2, "
             f"got {rgb.dtype} of shape {rgb.shape}"
         )
     return rgb
@@ -123,3 +133,16 @@ def check_fields(params, positive=(), non_negative=()):
     for name in non_negative:
         value = getattr(params, name)
         check_value(name, value, lambda v: np.isfinite(v) & (v >= 0), "a finite number >= 0")
+
+
+def check_adaptation(adaptation):
+    """An ``init``'s ``adaptation`` luminance (cd/m2), when given: finite and
+    ``>= 0``, ``ValueError`` naming it otherwise (NaN would fill the state
+    with NaN, and every frame after it)."""
+    if adaptation is not None:
+        check_value(
+            "adaptation",
+            adaptation,
+            lambda v: np.isfinite(v) & (v >= 0),
+            "a finite luminance >= 0 (cd/m2)",
+        )

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import photopic_luminance
-from jaxadapt.operators.checks import as_dtype, check_rgb
+from jaxadapt.operators.checks import as_dtype, check_frames_and_dt, check_rgb
 from jaxadapt.operators.goal import (
     BACKGROUNDS,
     LUMINANCE_FLOOR,
@@ -189,6 +189,9 @@ def ward_display_luminance(jnds, I_bd, tvi):
 
 class Schlick1994(eqx.Module):
     """Schlick's rational quantisation as Eq 6.2 with ``sigma_b = (I_max - I) / p``.
+
+    The curve is relative to the frame's brightest pixel, which is display
+    white: a uniform frame, a black one (at the floor) included, is white.
 
     Attributes
     ----------
@@ -481,8 +484,13 @@ def _frame_background(params):
 
 
 def step(params, state, frame, dt, *, gaze=None, key=None):
-    """Tone-map one frame ``(H, W, 3)``; returns ``(None, display frame)``."""
-    return None, tone_map(params.curve, frame, _frame_background(params))
+    """Tone-map one frame ``(H, W, 3)``; returns ``(None, display frame)``.
+
+    ``frame`` and ``dt`` are checked as the other operators check them
+    (:func:`~jaxadapt.operators.checks.check_frames_and_dt`).
+    """
+    guard, _ = check_frames_and_dt(jnp.asarray(frame), jnp.asarray(dt), 3, "frame")
+    return None, tone_map(params.curve, frame + guard, _frame_background(params))
 
 
 @eqx.filter_jit
@@ -492,15 +500,16 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     ``dt`` (s, scalar or ``(T,)``) only dates the diagnostics; ``gaze``,
     ``key`` and ``state`` are accepted for the shared contract and unused.
     Returns display frames ``(T, H, W, 3)`` in [0, 1] and :class:`Diagnostics`.
+    ``frames`` and ``dt`` are checked as the other operators check them
+    (:func:`~jaxadapt.operators.checks.check_frames_and_dt`: finite,
+    non-negative luminance, positive durations).
     """
     frames = jnp.asarray(frames)
-    if frames.ndim != 4:
-        raise ValueError(f"frames: expected shape (T, H, W, 3) in cd/m2, got shape {frames.shape}")
+    guard, dt = check_frames_and_dt(frames, jnp.asarray(dt, frames.dtype), 4)
     background = _frame_background(params)
-    out = jax.lax.map(lambda f: tone_map(params.curve, f, background), frames)
+    out = jax.lax.map(lambda f: tone_map(params.curve, f + guard, background), frames)
     L = jnp.maximum(photopic_luminance(frames), LUMINANCE_FLOOR)
     I_b = jnp.maximum(background(L), LUMINANCE_FLOOR)
-    dt = jnp.broadcast_to(jnp.asarray(dt, frames.dtype), frames.shape[:1])
     mean_background = jnp.exp(jnp.mean(jnp.log(I_b), axis=(-2, -1)))
     return out, Diagnostics(jnp.cumsum(dt) - dt, mean_background)
 

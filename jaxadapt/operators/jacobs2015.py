@@ -85,7 +85,13 @@ import numpy as np
 
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
-from jaxadapt.operators.checks import as_dtype, check_fields, check_frames, check_frames_and_dt
+from jaxadapt.operators.checks import (
+    as_dtype,
+    check_adaptation,
+    check_fields,
+    check_frames,
+    check_frames_and_dt,
+)
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_log_average, frame_centre
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
@@ -797,6 +803,7 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     """
     first_frame = jnp.asarray(first_frame)
     gaze = _default_gaze(gaze, first_frame, rank=3)
+    check_adaptation(adaptation)
     return _init(params, first_frame, gaze, _check_key(params, key), adaptation)
 
 

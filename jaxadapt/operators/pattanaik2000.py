@@ -48,6 +48,7 @@ from jaxadapt.color import (
 from jaxadapt.operators import goal as goals
 from jaxadapt.operators.checks import (
     as_dtype,
+    check_adaptation,
     check_fields,
     check_frames,
     check_frames_and_dt,
@@ -625,12 +626,7 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     if adaptation is not None:
         floating = first_frame is not None and jnp.issubdtype(first_frame.dtype, jnp.floating)
         dtype = first_frame.dtype if floating else jnp.result_type(float)
-        check_value(
-            "adaptation",
-            adaptation,
-            lambda v: np.isfinite(v) & (v >= 0),
-            "a finite luminance >= 0 (cd/m2)",
-        )
+        check_adaptation(adaptation)
         A = jnp.maximum(jnp.asarray(adaptation, dtype=dtype), goals.LUMINANCE_FLOOR)
         return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
