@@ -37,6 +37,7 @@ def read_hdr(path):
     Returns
     -------
     numpy array, float32, (H, W, 3)
+        The image's display window (:func:`display_window`).
 
     Raises
     ------
@@ -74,10 +75,32 @@ def read_hdr(path):
     finally:
         image.close()
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
-    pixels = pixels[..., rgb_channels(path, spec.channelnames)]
+    pixels = display_window(pixels[..., rgb_channels(path, spec.channelnames)], spec)
     if is_rgbe:
         pixels = pixels / np.float32(radiance_exposure(path))
     return pixels
+
+
+def display_window(pixels, spec):
+    """The pixels ``(h, w, C)`` of an image's data window placed in its
+    display window (``spec``: an OpenImageIO ``ImageSpec``).
+
+    An OpenEXR file stores only its data window, which may be a part of
+    the image (a render cropped to its non-black pixels, as VFX renderers
+    write them) or reach beyond it (overscan). The image is the display
+    window: black (0 cd/m2) where no data are stored, and data outside it
+    dropped. Other formats have the two windows equal.
+    """
+    h, w = spec.full_height, spec.full_width
+    x, y = spec.x - spec.full_x, spec.y - spec.full_y  # data origin in the display window
+    if (x, y, pixels.shape[:2]) == (0, 0, (h, w)):
+        return pixels
+    image = np.zeros((h, w, pixels.shape[-1]), pixels.dtype)
+    rows = slice(max(y, 0), min(y + pixels.shape[0], h))
+    cols = slice(max(x, 0), min(x + pixels.shape[1], w))
+    if rows.start < rows.stop and cols.start < cols.stop:
+        image[rows, cols] = pixels[rows.start - y : rows.stop - y, cols.start - x : cols.stop - x]
+    return image
 
 
 def rgb_channels(path, names):

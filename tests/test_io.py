@@ -102,3 +102,27 @@ def test_two_channels_that_are_not_grey_are_refused(tmp_path):
         ValueError, match=r"motion\.exr: expected R, G and B channels .* got channels R, G"
     ):
         io.read_hdr(path)
+
+
+@pytest.mark.parametrize(
+    "x, y, w, h", [(8, 8, 8, 8), (-4, -2, 24, 20), (3, 0, 5, 16), (20, 20, 4, 4)]
+)
+def test_exr_data_window_is_placed_in_the_display_window(tmp_path, x, y, w, h):
+    # An EXR stores its data window, which may be part of the image (a render
+    # cropped to its non-black pixels) or reach beyond it (overscan). Read as
+    # the data window, a moving patch in a black frame came out as a still
+    # patch, of the patch's size. The reference: OpenImageIO's own crop of
+    # the file to its display window (zeros where no data are stored).
+    spec = oiio.ImageSpec(w, h, 3, "float")
+    spec.x, spec.y = x, y
+    spec.full_x, spec.full_y, spec.full_width, spec.full_height = 0, 0, 16, 12
+    path = str(tmp_path / "window.exr")
+    out = oiio.ImageOutput.create(path)
+    out.open(path, spec)
+    out.write_image(np.random.default_rng(0).uniform(1, 1000, (h, w, 3)).astype(np.float32))
+    out.close()
+    buf = oiio.ImageBuf(path)
+    expected = oiio.ImageBufAlgo.crop(buf, buf.roi_full).get_pixels(oiio.FLOAT)
+    image = io.read_hdr(path)
+    assert image.shape == (12, 16, 3)
+    np.testing.assert_array_equal(image, expected)
