@@ -409,7 +409,16 @@ def _staged(out, replaces=None, keep=()):
             with contextlib.suppress(OSError, UnicodeDecodeError):
                 earlier = (out / manifest).read_text().splitlines()
             (staging / manifest).write_text("".join(f"{name}\n" for name in written))
-        for name in sorted(path.name for path in staging.iterdir()):
+        names = sorted(path.name for path in staging.iterdir())
+        # Only a file can be replaced by a file: a folder in the way would
+        # stop the moves half-way, the folder holding two runs' outputs.
+        for name in names:
+            if (out / name).is_dir():
+                raise UsageError(
+                    f"--out: {out / name} is a folder where this run writes a file; "
+                    "move it away, or choose another --out"
+                )
+        for name in names:
             (staging / name).replace(out / name)
         for name in set(earlier) - set(written):
             path = out / name

@@ -192,6 +192,23 @@ def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
     assert names == [".jaxadapt-render", *files]
 
 
+def test_a_folder_where_an_output_goes_fails_the_run_before_anything_moves(tmp_path, capsys):
+    # The moves into --out stopped at the folder: the outputs before it in
+    # order were the new run's, those after it the old run's, and the
+    # message named the removed staging folder.
+    out = tmp_path / "out"
+    args = ["render", "--scene", "title-step", "--size", "24x16", "--out", str(out)]
+    assert _run(capsys, *args, "--duration", "0.3")[0] == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    (out / "diagnostics.csv").unlink()
+    (out / "diagnostics.csv").mkdir()
+    del before["diagnostics.csv"]
+    status, err = _run(capsys, *args, "--duration", "0.2")
+    _assert_one_line_error(status, err, "--out", str(out / "diagnostics.csv"), "is a folder")
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["diagnostics.csv"]
+
+
 def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write(
     tmp_path, capsys, monkeypatch
 ):
