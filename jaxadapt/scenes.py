@@ -316,10 +316,12 @@ def saccade(start, end, at):
 def read_gaze_csv(path):
     """Read a gaze recording: a CSV of ``t, x, y`` rows (s, pixels).
 
-    An optional header line ``t,x,y`` is skipped (as is a UTF-8 byte-order
-    mark, which spreadsheets write). ``x`` and ``y`` may both be empty or
-    ``nan`` where the tracker lost the eye (a blink); one of them alone
-    missing, or an infinite coordinate, is an error. Times must increase.
+    A header line (a first line of three cells none of which is a number,
+    ``t,x,y`` or ``Time,X,Y``) is skipped, as is a UTF-8 byte-order mark,
+    which spreadsheets write. ``x`` and ``y`` may both be empty or ``nan``
+    where the tracker lost the eye (a blink); one of them alone missing, or
+    an infinite coordinate (also one beyond float32's range, in which the
+    operators compute), is an error. Times must increase.
 
     Returns
     -------
@@ -347,28 +349,42 @@ def read_gaze_csv(path):
         raise ValueError(
             f"gaze: expected a text CSV of t,x,y rows, got binary data in {path}"
         ) from None
+
+    def number(cell):
+        try:
+            float(cell)
+        except ValueError:
+            return False
+        return True
+
+    lines = []
     for line, row in enumerate(csv.reader(text.splitlines()), start=1):
         cells = [c.strip() for c in row]
-        if not any(cells) or (line == 1 and cells[:1] == ["t"]):
+        header = line == 1 and len(cells) == 3 and all(c and not number(c) for c in cells)
+        if not any(cells) or header:
             continue
         try:
             if len(cells) != 3:
                 raise ValueError
             t = float(cells[0])
             xy = [float(c) if c else np.nan for c in cells[1:]]
-            if np.isnan(xy[0]) != np.isnan(xy[1]) or np.any(np.isinf(xy)):
+            if np.isnan(xy[0]) != np.isnan(xy[1]) or np.any(np.abs(xy) > np.finfo(np.float32).max):
                 raise ValueError
         except ValueError:
             raise ValueError(
                 f"gaze: expected rows of three numbers t,x,y (s, pixels; x and y both "
                 f"empty or nan for a blink) in {path}, got {','.join(row)!r} on line {line}"
             ) from None
+        if not np.isfinite(t) or (rows and t <= rows[-1][0]):
+            raise ValueError(
+                f"gaze: expected finite times that increase in {path}, got {cells[0]} on "
+                f"line {line}" + (f" after {rows[-1][0]:g} on line {lines[-1]}" if rows else "")
+            )
         rows.append([t, *xy])
+        lines.append(line)
     if not rows:
         raise ValueError(f"gaze: expected at least one t,x,y row in {path}, got none")
     data = np.asarray(rows)
-    if not (np.all(np.isfinite(data[:, 0])) and np.all(np.diff(data[:, 0]) > 0)):
-        raise ValueError(f"gaze: expected finite, increasing times in {path}, got {data[:, 0]}")
     return data[:, 0], data[:, 1:]
 
 

@@ -213,6 +213,9 @@ def test_bad_input_is_named():
         F.fit(X, np.zeros(4), 30)
     with pytest.raises(ValueError, match=r"lapse: expected a fixed rate or bounds"):
         F.fit(X, np.zeros(5), 30, lapse=(0.1, 0.05))
+    for steps in (0, -5):  # ran zero steps and reported the start
+        with pytest.raises(ValueError, match=rf"^max_steps: expected at least 1, got {steps}"):
+            F.fit(X, np.zeros(5), 30, max_steps=steps)
     with pytest.raises(ValueError, match="method: expected one of"):
         F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, method="bca")
     import equinox as eqx

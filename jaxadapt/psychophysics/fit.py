@@ -637,6 +637,8 @@ _checked = eqx.filter_jit(_check)
 
 @eqx.filter_jit
 def _fit(levels, n_yes, n_total, guess, lapse, max_steps):
+    if int(max_steps) < 1:  # static: checked once per value, when traced
+        raise ValueError(f"max_steps: expected at least 1, got {max_steps}")
     return _fit_batch(*_check(levels, n_yes, n_total, guess, lapse), max_steps)
 
 
