@@ -50,7 +50,13 @@ float64 ones to about 1e-5 log units.
 Fitted rates are ``low + (high - low) sigmoid(u)`` with a weak Gaussian prior
 (standard deviation ``PRIOR_SD`` = 10) on ``u``, which keeps a rate that wants
 to leave its bounds finite (within about 1% of its range from the bound) and
-the information matrix invertible.
+the information matrix invertible. The estimate is then the posterior mode,
+not the maximum of the likelihood, where the likelihood's maximum lies near
+a bound: on 7 levels of 40 trials, ``lapse=(0, 0.2)``, a lapse rate of
+0.0138 against the bounded maximum's 0.0030 (SciPy's L-BFGS-B on the same
+likelihood), the log-likelihood 0.010 lower and the slope's standard error
+24% smaller. Rates held fixed (the default, and the command line's) are
+plain maximum likelihood.
 
 Degenerate data
 ---------------
