@@ -530,6 +530,10 @@ def test_bad_dt_and_missing_key_are_named():
         ({"b1": (1.2e-3, -1.0, 5.5e-7)}, "b1: expected a positive, finite number"),
         ({"c2": jnp.nan}, "c2: expected a positive, finite number"),
         ({"j1": -0.1}, "j1: expected a finite number >= 0"),
+        # Two bleaching rates for three cones: accepted, then JAX's
+        # broadcasting error from inside run.
+        ({"b1": (1e-3, 1e-4)}, r"b1: expected shape \(3,\) .* got shape \(2,\)"),
+        ({"H": np.eye(2)}, r"H: expected shape \(3, 3\)"),
     ],
 )
 def test_a_parameter_out_of_its_range_is_named(fields, match):

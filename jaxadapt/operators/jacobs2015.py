@@ -240,6 +240,13 @@ class Params(eqx.Module):
             raise ValueError(
                 f"acuity_noise_cell: expected an int >= 1 pixels, got {self.acuity_noise_cell!r}"
             )
+        for name, shape in CHANNEL_FIELDS.items():
+            value = getattr(self, name)
+            if jnp.shape(value)[-len(shape) :] != shape:
+                raise ValueError(
+                    f"{name}: expected shape {shape} (leading axes may batch), got shape "
+                    f"{jnp.shape(value)}"
+                )
         check_value("rho_step", self.rho_step, lambda v: v >= 0, ">= 0 log10 units")
         check_fields(self, positive=POSITIVE_FIELDS, non_negative=NON_NEGATIVE_FIELDS)
         if not (self.afterimage_blur >= 0):
@@ -251,6 +258,16 @@ class Params(eqx.Module):
         return self.acuity or self.dithering
 
 
+#: The fields of :class:`Params` with one value per cone or channel, and
+#: their shapes (leading axes may batch them).
+CHANNEL_FIELDS = {
+    "b1": (3,),
+    "b2": (3,),
+    "w_P": (3,),
+    "w_S": (3,),
+    "H": (3, 3),
+    "scotopic_colour": (3,),
+}
 #: The fields of :class:`Params` that must be positive and finite (rates,
 #: exponents, scales and the display's levels).
 POSITIVE_FIELDS = (
