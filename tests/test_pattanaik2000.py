@@ -354,6 +354,18 @@ def test_bad_dt_is_named():
         op.step(P, state, frames[0], jnp.ones(2))
 
 
+def test_a_state_of_the_wrong_kind_or_shape_is_named():
+    # A local background's state maps of the wrong shape gave JAX's
+    # broadcasting error.
+    frames = jnp.full((3, 4, 5, 3), 100.0)
+    local = op.Params(background="gaussian")
+    state = op.init(local, frames[0])
+    with pytest.raises(ValueError, match=r"^state: .* \(4, 5\) .* got A_rod of shape \(5, 4\)"):
+        op.run(local, frames, 0.1, state=state._replace(A_rod=jnp.ones((5, 4))))
+    with pytest.raises(ValueError, match=r"^state: expected a pattanaik2000.State, got tuple"):
+        op.run(P, frames, 0.1, state=(1.0, 1.0, 0.5, 0.5))
+
+
 def test_unknown_goal_is_named():
     with pytest.raises(ValueError, match="goal: expected one of"):
         op.Params(goal="median")

@@ -748,6 +748,28 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     return _run(params, jnp.asarray(frames), jnp.asarray(dt), gaze, state)
 
 
+def _checked_state(state, shape, guard):
+    """A given ``state`` broadcast to the goals' ``shape`` (``()``, or the
+    frames' ``(H, W)`` with a local background), with the frames' check
+    ``guard`` added, after checking that it is a :class:`State` whose
+    fields broadcast to ``shape`` (``ValueError`` naming the field; its
+    values are not checked: a second conditional would cost every step of
+    a fit through ``run``)."""
+    if not isinstance(state, State):
+        raise ValueError(f"state: expected a pattanaik2000.State, got {type(state).__name__}")
+    for name, field in zip(State._fields, state, strict=True):
+        try:
+            fits = jnp.broadcast_shapes(jnp.shape(field), shape) == shape
+        except ValueError:
+            fits = False
+        if not fits:
+            raise ValueError(
+                f"state: expected fields of shape () or {shape} (the goals' shape), got "
+                f"{name} of shape {jnp.shape(field)}"
+            )
+    return State(*(jnp.broadcast_to(field + guard, shape) for field in state))
+
+
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, state):
     guard, dt = check_frames_and_dt(frames, dt, 4)
@@ -759,7 +781,7 @@ def _run(params, frames, dt, gaze, state):
     G_rod, G_cone = jax.vmap(frame_goals, (None, 0, 0))(params, frames, gaze)
     if state is None:
         state = static_state(params, G_rod[0], G_cone[0])
-    state = jax.tree.map(lambda s: jnp.broadcast_to(s + guard, G_cone.shape[1:]), state)
+    state = _checked_state(state, G_cone.shape[1:], guard)
     states, final_state = advance_sequence(params, state, G_rod, G_cone, dt)
     out, record = _display(params, G_rod, G_cone, states, frames, gaze)
     G_rod, G_cone, states, obs, curves = record
