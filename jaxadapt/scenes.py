@@ -357,7 +357,7 @@ def read_gaze_csv(path):
             return False
         return True
 
-    lines = []
+    last = None  # line of the row before
     for line, row in enumerate(csv.reader(text.splitlines()), start=1):
         cells = [c.strip() for c in row]
         header = line == 1 and len(cells) == 3 and all(c and not number(c) for c in cells)
@@ -378,10 +378,10 @@ def read_gaze_csv(path):
         if not np.isfinite(t) or (rows and t <= rows[-1][0]):
             raise ValueError(
                 f"gaze: expected finite times that increase in {path}, got {cells[0]} on "
-                f"line {line}" + (f" after {rows[-1][0]:g} on line {lines[-1]}" if rows else "")
+                f"line {line}" + (f" after {rows[-1][0]:g} on line {last}" if rows else "")
             )
         rows.append([t, *xy])
-        lines.append(line)
+        last = line
     if not rows:
         raise ValueError(f"gaze: expected at least one t,x,y row in {path}, got none")
     data = np.asarray(rows)

@@ -752,17 +752,13 @@ def _checked_state(state, shape, guard):
     """A given ``state`` broadcast to the goals' ``shape`` (``()``, or the
     frames' ``(H, W)`` with a local background), with the frames' check
     ``guard`` added, after checking that it is a :class:`State` whose
-    fields broadcast to ``shape`` (``ValueError`` naming the field; its
+    fields are scalars or of ``shape`` (``ValueError`` naming the field; its
     values are not checked: a second conditional would cost every step of
     a fit through ``run``)."""
     if not isinstance(state, State):
         raise ValueError(f"state: expected a pattanaik2000.State, got {type(state).__name__}")
     for name, field in zip(State._fields, state, strict=True):
-        try:
-            fits = jnp.broadcast_shapes(jnp.shape(field), shape) == shape
-        except ValueError:
-            fits = False
-        if not fits:
+        if jnp.shape(field) not in ((), shape):
             raise ValueError(
                 f"state: expected fields of shape () or {shape} (the goals' shape), got "
                 f"{name} of shape {jnp.shape(field)}"
