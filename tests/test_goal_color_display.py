@@ -79,11 +79,11 @@ def test_gaussian_blur_matches_scipy_and_keeps_constants():
 
 def test_the_forms_of_the_separable_filter_agree():
     # The CPU runs the per-axis form, other platforms the both-axes form, and
-    # kernels longer than LONG_KERNEL taps go through the FFT
+    # kernels longer than LONG_KERNEL taps go by blocks
     # (separable_filter's notes): the same filter, kernels longer than the
     # image and one-pixel axes included.
     rng = np.random.default_rng(3)
-    forms = (spatial._filter_per_axis, spatial._filter_both_axes, spatial._filter_by_fft)
+    forms = (spatial._filter_per_axis, spatial._filter_both_axes, spatial._filter_by_blocks)
     for shape, sigma in (((3, 20, 30), 1.5), ((2, 5, 7), 10.0), ((1, 9), 0.75), ((4, 1, 6), 2.0)):
         x = jnp.asarray(rng.uniform(size=shape))
         taps = spatial.gaussian_kernel(sigma)
@@ -92,7 +92,7 @@ def test_the_forms_of_the_separable_filter_agree():
             np.testing.assert_allclose(other, per_axis, rtol=1e-12)
 
 
-def test_long_kernels_go_through_the_fft_and_match_scipy():
+def test_long_kernels_go_by_blocks_and_match_scipy():
     # 1,001 taps (sigma 125): one slice a tap would take minutes to compile.
     from scipy.ndimage import gaussian_filter
 
@@ -105,6 +105,23 @@ def test_long_kernels_go_through_the_fft_and_match_scipy():
     blurred = spatial.gaussian_blur(x32, 125.0)
     assert blurred.dtype == jnp.float32
     np.testing.assert_allclose(blurred, expected, rtol=1e-5)
+
+
+def test_long_kernels_keep_the_dark_side_of_an_hdr_edge_in_float32():
+    # 1e8 | 1e-3 cd/m2: an FFT spread the rounding of 1e8 over the whole
+    # line (the dark side off by up to 2e4 times its value); the blocks sum
+    # each window's own terms (_filter_by_blocks).
+    from scipy.ndimage import gaussian_filter
+
+    x = np.where(np.arange(1200) < 200, 1e8, 1e-3) * np.ones((8, 1))
+    expected = gaussian_filter(x, (0.0, 70.0), mode="mirror", truncate=4.0)
+    taps = spatial.gaussian_kernel(70.0)
+    assert taps.size > spatial.LONG_KERNEL
+    with jax.enable_x64(False):
+        blurred = spatial._separable_filter(
+            jnp.asarray(x, jnp.float32), tuple(float(w) for w in taps)
+        )
+    np.testing.assert_allclose(blurred, expected, rtol=1e-4)
 
 
 def test_both_forms_of_the_colour_transform_are_the_matrix_product():
