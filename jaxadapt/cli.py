@@ -207,7 +207,9 @@ def build_parser():
         type=_positive,
         default=None,
         metavar="PX",
-        help="size of the local background estimator, pixels (default: 8)",
+        help="size s of the local background estimator, pixels (default: 8): the box "
+        "||p - i|| < s of box (half-width round(s) - 1, so at least 1) and the finest box "
+        "of adaptive and multiscale, a Gaussian exp(-d^2/s^2) for gaussian and bilateral",
     )
     render.add_argument(
         "--adaptation-goal",
@@ -461,6 +463,15 @@ def _check_options(args):
         raise UsageError(
             f"--background-scale: applies to a local --background, not {args.background}"
         )
+    if args.background_scale is not None:
+        from jaxadapt.operators.goal import check_background
+
+        try:
+            check_background(
+                args.background, args.background_scale, ("--background", "--background-scale")
+            )
+        except ValueError as error:
+            raise UsageError(str(error)) from None
     if args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
 

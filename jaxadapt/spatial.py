@@ -311,7 +311,7 @@ def _window_sums(x, w, axis):
     a = int(np.sqrt(w))
     b, c = divmod(w, a)
     count = n - w + 1
-    zero = jnp.zeros((), x.dtype)
+    zero = np.zeros((), x.dtype)  # concrete: the monoid reduce_window_sum, which JAX transposes
 
     def sums(y, size, dilation=1):
         window, dilations = [1] * y.ndim, [1] * y.ndim

@@ -120,6 +120,41 @@ def test_constant_image_gives_its_luminance(name):
     np.testing.assert_allclose(goal.BACKGROUNDS[name](L), 37.0, rtol=1e-12)
 
 
+def test_box_sizes_follow_the_chapter_box_as_the_octaves_do():
+    # ||p - i|| < s made square: half-width round(s) - 1, as each level of
+    # octave_radii (box_background took round(s), a box two pixels wider).
+    L = np.random.default_rng(7).lognormal(size=(9, 13))
+    np.testing.assert_array_equal(goal.box_background(jnp.asarray(L), scale=1), L)
+    expected = ndi.uniform_filter(L, size=2 * 3 + 1, mode="mirror")
+    np.testing.assert_allclose(goal.box_background(jnp.asarray(L), scale=4.2), expected, rtol=1e-12)
+    assert goal.octave_radii(4.2, 2)[0] == goal.box_radius(4.2) == 3
+
+
+@pytest.mark.parametrize("name", LOCAL)
+def test_backgrounds_differentiate_under_jit(name):
+    # The box sums' reduce_window had a traced initial value, so JAX took the
+    # generic reduce_window, which it cannot transpose: jax.grad failed for
+    # box, adaptive and multiscale (they are jitted).
+    rng = np.random.default_rng(8)
+    L, v, w = (jnp.asarray(rng.lognormal(size=SHAPE)) for _ in range(3))
+
+    def f(L):
+        return jnp.sum(w * goal.estimate_background(L, name, 2.0))
+
+    h = 1e-6
+    expected = (f(L + h * v) - f(L - h * v)) / (2 * h)
+    np.testing.assert_allclose(jnp.sum(jax.grad(f)(L) * v), expected, rtol=1e-6)
+
+
+@pytest.mark.parametrize("name", LOCAL)
+def test_integer_luminance_is_averaged_as_floats(name):
+    # gaussian_background truncated its averages to integers, and
+    # bilateral_background failed inside its loop.
+    L = np.random.default_rng(9).integers(0, 100, size=SHAPE)
+    as_float = goal.estimate_background(jnp.asarray(L, float), name, 2.0)
+    np.testing.assert_allclose(goal.estimate_background(jnp.asarray(L), name, 2.0), as_float)
+
+
 def test_large_neighbourhoods_on_a_small_image():
     """Sizes beyond the 9 x 13 image; the adaptive default reaches radius 127."""
     L = jnp.asarray(np.full(SHAPE, 3.0))
@@ -226,6 +261,9 @@ def test_no_nan_across_the_range_of_vision(log_l):
         (lambda L: goal.adaptive_background(L, tolerance=-0.1), "tolerance"),
         (lambda L: goal.adaptive_background(L, levels=1), "levels"),
         (lambda L: goal.adaptive_background(L, scale=0.5), "scale"),
+        (lambda L: goal.box_background(L, scale=0.4), "scale"),
+        (lambda L: goal.gaussian_background(L, scale=float("inf")), "scale"),
+        (lambda L: goal.box_background(L, scale="8"), "scale"),
         (lambda L: goal.multiscale_background(L, levels=2.5), "levels"),
         (lambda L: goal.global_background(L[0, 0]), "L"),
         (lambda L: spatial.box_filter(L, -1), "radius"),

@@ -289,6 +289,14 @@ def test_zero_and_negative_pixels_count_as_the_floor(name):
         (lambda: classic.WardJND(L_da=0.0), "WardJND.L_da"),
         (lambda: classic.WardJND(L_dmax=-100.0), "WardJND.L_dmax"),
         (lambda: classic.WardJND(tvi="ferwerda"), "WardJND.tvi"),
+        (lambda: classic.Photographic(a=np.inf), "Photographic.a"),
+        (lambda: classic.Schlick1994(p=np.inf), "Schlick1994.p"),
+        (lambda: classic.ReinhardDevlin(m=np.inf), "ReinhardDevlin.m"),
+        (lambda: classic.Params(curve="photographic"), "curve"),
+        (lambda: classic.Params(curve=classic.Photographic), "curve"),
+        (lambda: classic.Params(background="box", background_scale=0.5), "background_scale"),
+        (lambda: classic.Params(background_scale=np.inf), "background_scale"),
+        (lambda: classic.Params(background="blur"), "background"),
     ],
 )
 def test_bad_parameters_name_the_field(make, name):
@@ -306,6 +314,25 @@ def test_bad_frames_and_backgrounds_name_the_argument():
         classic.tone_map(params, jnp.ones((4, 5, 3)), jnp.ones((5, 4)))
     with pytest.raises(eqx.EquinoxRuntimeError, match="frame: expected finite"):
         classic.tone_map(params, jnp.ones((4, 5, 3)).at[0, 0, 0].set(jnp.nan))
+    with pytest.raises(ValueError, match="^background: expected None, a luminance array"):
+        classic.tone_map(params, jnp.ones((4, 5, 3)), "gaussian")
+    for bad in (jnp.nan, -5.0):  # a black frame, or a white one, before
+        with pytest.raises(eqx.EquinoxRuntimeError, match="background: expected finite"):
+            classic.tone_map(params, jnp.ones((4, 5, 3)), jnp.full((4, 5), bad))
+
+
+def test_schlick_darkest_pixel_is_above_the_floor():
+    # One black pixel made I_min the floor (1e-6 cd/m2) and p hundreds of
+    # times larger: 10 cd/m2 of a 1 to 1,000 cd/m2 ramp went from 0.092 to 0.955.
+    ramp = np.geomspace(1.0, 1000.0, 12).reshape(3, 4)
+    curve = classic.Schlick1994(p=10.0, k=0.5)
+
+    def shown(L):
+        return classic.tone_map(curve, jnp.asarray(np.repeat(L[..., None], 3, -1)), L)
+
+    lit = shown(np.concatenate([ramp, np.full((3, 1), 500.0)], 1))
+    with_black = shown(np.concatenate([ramp, [[0.0], [500.0], [500.0]]], 1))
+    np.testing.assert_allclose(with_black[:, :4], lit[:, :4], rtol=1e-12)
 
 
 def test_run_and_step_check_frames_and_dt_as_the_other_operators():

@@ -263,6 +263,7 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
         (["--background", "gaussian", "--adaptation-goal", "white_fraction"], "--adaptation-goal"),
         (["FILE", "--gaze", "GAZE"], "--gaze"),  # pattanaik2000, goal log_average, global
         (["--background", "arithmetic", "--background-scale", "4"], "--background-scale"),
+        (["--background", "adaptive", "--background-scale", "0.5"], "--background-scale"),
         (["--seed", "4"], "--seed"),
         (["--operator", "schlick1994", "--pixels-per-degree", "20"], "--pixels-per-degree"),
         (["FILE", "--pixels-per-degree", "60"], "--pixels-per-degree"),  # log-average goal

@@ -31,8 +31,8 @@ import numpy as np
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators.checks import as_dtype, check_frames_and_dt, check_rgb
 from jaxadapt.operators.goal import (
-    BACKGROUNDS,
     LUMINANCE_FLOOR,
+    check_background,
     estimate_background,
     global_background,
 )
@@ -46,7 +46,7 @@ def _array(x):
 
 
 def _positive(name, value):
-    check_value(name, value, lambda v: v > 0, "a positive value")
+    check_value(name, value, lambda v: np.isfinite(v) & (v > 0), "a positive finite value")
 
 
 # -- the curves in their two forms --------------------------------------------
@@ -202,19 +202,23 @@ class Schlick1994(eqx.Module):
         quantisation replaces ``p`` by ``p (1 - k + k I_b / sqrt(I_min
         I_max))``, so that the curve is steeper where the background is
         bright. ``0`` (the default) is the uniform curve, which does not
-        depend on the background.
+        depend on the background. ``I_min`` is the darkest pixel above the
+        luminance floor: a black pixel anywhere would otherwise make it the
+        floor, 1e-6 cd/m2, and multiply ``p`` by hundreds (a 1 to 1,000
+        cd/m2 ramp: 10 cd/m2 shown at 0.955 instead of 0.092).
     """
 
     p: jax.Array = eqx.field(default=100.0, converter=_array)
     k: jax.Array = eqx.field(default=0.0, converter=_array)
 
     def __check_init__(self):
-        check_value("Schlick1994.p", self.p, lambda v: v >= 1, "p >= 1")
+        check_value("Schlick1994.p", self.p, lambda v: np.isfinite(v) & (v >= 1), "a finite p >= 1")
         check_value("Schlick1994.k", self.k, lambda v: (v >= 0) & (v <= 1), "k in [0, 1]")
 
     def curve(self, I, I_b):
         I_max = jnp.max(I, axis=(-2, -1), keepdims=True)
-        I_min = jnp.min(I, axis=(-2, -1), keepdims=True)
+        lit = I > LUMINANCE_FLOOR  # black pixels come at the floor (tone_map)
+        I_min = jnp.min(jnp.where(lit, I, I_max), axis=(-2, -1), keepdims=True)
         p = self.p * (1.0 - self.k + self.k * I_b / jnp.sqrt(I_min * I_max))
         sigma = schlick_sigma(I, I_max, p)
         # sigma = 0 at the brightest pixel: Eq 6.2 is then 1.
@@ -359,7 +363,18 @@ def _background(L, background):
     """The background luminance of ``L`` that ``tone_map``'s argument asks for."""
     if background is None:
         return global_background(L)
-    I_b = background(L) if callable(background) else jnp.asarray(background, L.dtype)
+    if callable(background):
+        I_b = background(L)
+    else:
+        try:
+            I_b = jnp.asarray(background, L.dtype)
+        except (TypeError, ValueError):
+            raise ValueError(
+                "background: expected None, a luminance array (cd/m2) or a function of the "
+                f"luminance image, got {background!r}"
+            ) from None
+        bad = ~jnp.all(jnp.isfinite(I_b) & (I_b >= 0))
+        I_b = eqx.error_if(I_b, bad, "background: expected finite, non-negative luminance (cd/m2)")
     try:
         fits = jnp.broadcast_shapes(I_b.shape, L.shape) == L.shape
     except ValueError:
@@ -388,9 +403,11 @@ def tone_map(params, frame, background=None):
         Linear BT.709 RGB, cd/m2, finite; leading axes are frames or batches.
         A pixel whose luminance is below
         :data:`~jaxadapt.operators.goal.LUMINANCE_FLOOR` (zero, negative)
-        counts as a grey of the floor's luminance, so that black is shown at
-        the curve's black level (Tumblin's ``D/k^2``, Ward's display
-        threshold), as the floor itself is, not at 0 beside it.
+        counts as a grey of the floor's luminance and is shown as the curve
+        shows that luminance, not at 0: beside brighter pixels, near the
+        curve's black level; a black frame, or a black region wider than a
+        local background, as a grey at its own background (Photographic ``a
+        / (1 + a)``, Tumblin ``D / k``, Ward 0.5; Schlick's white).
     background : None, array or callable
         Background luminance ``I_b``, cd/m2: ``None`` for the log average
         of each image (global), an array broadcastable to ``(..., H, W)``,
@@ -449,11 +466,13 @@ class Params(eqx.Module):
     background_scale: float = eqx.field(default=8.0, static=True)
 
     def __check_init__(self):
-        if self.background not in BACKGROUNDS:
+        curves = tuple(TONE_CURVES.values())
+        if not isinstance(self.curve, curves):
             raise ValueError(
-                f"background: expected one of {tuple(BACKGROUNDS)}, got {self.background!r}"
+                f"curve: expected an instance of one of {', '.join(c.__name__ for c in curves)}, "
+                f"got {self.curve!r}"
             )
-        _positive("background_scale", self.background_scale)
+        check_background(self.background, self.background_scale)
 
 
 class Diagnostics(NamedTuple):

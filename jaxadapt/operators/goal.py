@@ -137,14 +137,38 @@ GOALS = ("log_average", "white_fraction", "foveal")
 # -- background luminance, image -> image (§6.4) ---------------------------------
 
 
-def _check_luminance(L):
+def _luminance(L):
+    """``L`` checked for its shape, as floats (integer luminance is promoted:
+    a filter computing in its dtype would truncate the averages)."""
+    L = jnp.asarray(L)
     if L.ndim < 2:
         raise ValueError(f"L: expected a luminance image of shape (..., H, W), got shape {L.shape}")
+    return L.astype(jnp.result_type(L.dtype, float))
 
 
-def _check_scale(scale):
-    if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale: expected a positive size in pixels, got {scale!r}")
+def check_scale(scale, least=0.0, name="scale"):
+    """Refuse a size ``scale`` (pixels) that is not a finite number above
+    0, or ``least`` (the boxes: at least 1 pixel)."""
+    number = isinstance(scale, (int, float, np.integer, np.floating)) and not isinstance(
+        scale, bool
+    )
+    if not (number and np.isfinite(scale) and scale > 0 and scale >= least):
+        expected = f"a size of at least {least:g} pixel" if least else "a positive size in pixels"
+        raise ValueError(f"{name}: expected {expected}, got {scale!r}")
+
+
+def box_radius(scale):
+    """Half-width of the chapter's box ``||p - i|| < s`` (§6.4.2) made
+    square: ``round(s) - 1`` pixels, so that ``s = 1`` is the pixel itself
+    and ``s >= 1``.
+
+    Examples
+    --------
+    >>> box_radius(1), box_radius(8.0)
+    (0, 7)
+    """
+    check_scale(scale, least=1)
+    return int(round(scale)) - 1
 
 
 def arithmetic_average(L):
@@ -193,7 +217,7 @@ def global_background(L, floor=LUMINANCE_FLOOR):
     >>> global_background(jnp.array([[1.0, 100.0]])).tolist()  # doctest: +ELLIPSIS
     [[10.0..., 10.0...]]
     """
-    _check_luminance(L)
+    L = _luminance(L)
     return jnp.broadcast_to(log_average(L, floor)[..., None, None], L.shape)
 
 
@@ -211,7 +235,7 @@ def arithmetic_background(L):
     array, shape (..., H, W)
         Background, cd/m2, constant over each image.
     """
-    _check_luminance(L)
+    L = _luminance(L)
     return jnp.broadcast_to(arithmetic_average(L)[..., None, None], L.shape)
 
 
@@ -224,18 +248,17 @@ def box_background(L, scale=8.0):
     L : array, shape (..., H, W)
         Luminance, cd/m2.
     scale : float
-        Size ``s``, pixels (static): the half-width of the square averaged,
-        ``round(s)`` (the chapter's disc ``||p - i|| < s`` made square, so
-        that it is separable; see :func:`jaxadapt.spatial.box_filter`).
+        Size ``s``, pixels (static), ``>= 1``: the chapter's disc ``||p - i||
+        < s`` made square, so that it is separable, of half-width
+        :func:`box_radius` ``round(s) - 1`` (as each level of
+        :func:`octave_radii`; see :func:`jaxadapt.spatial.box_filter`).
 
     Returns
     -------
     array, shape (..., H, W)
         Background, cd/m2.
     """
-    _check_luminance(L)
-    _check_scale(scale)
-    return box_filter(L, int(round(scale)))
+    return box_filter(_luminance(L), box_radius(scale))
 
 
 @eqx.filter_jit
@@ -255,8 +278,8 @@ def gaussian_background(L, scale=8.0):
     array, shape (..., H, W)
         Background, cd/m2.
     """
-    _check_luminance(L)
-    _check_scale(scale)
+    L = _luminance(L)
+    check_scale(scale)
     return gaussian_blur(L, scale / np.sqrt(2.0))
 
 
@@ -310,7 +333,7 @@ def bilateral_background(L, scale=4.0, sigma_r=None, kind="durand-dorsey", floor
     The Gaussian weight decays faster than any exponential, so Durand and
     Dorsey's 0.4 is safe.
     """
-    _check_luminance(L)
+    L = _luminance(L)
     if kind not in BILATERAL_KINDS:
         raise ValueError(f"kind: expected one of {tuple(BILATERAL_KINDS)}, got {kind!r}")
     spatial, range_kernel, default_sigma_r = BILATERAL_KINDS[kind]
@@ -322,8 +345,8 @@ def bilateral_background(L, scale=4.0, sigma_r=None, kind="durand-dorsey", floor
 def octave_radii(scale, levels):
     """Box half-widths of a stack whose size parameter doubles: ``round(s 2^i) - 1``.
 
-    The chapter's box ``||p - i|| < s`` spans ``s - 1`` pixels either side,
-    so ``s = 1`` is the pixel itself and each level doubles ``s``.
+    Each level is the box of size ``s 2^i`` (:func:`box_radius`): ``s = 1``
+    is the pixel itself.
 
     Parameters
     ----------
@@ -341,11 +364,10 @@ def octave_radii(scale, levels):
     >>> octave_radii(1, 5)
     (0, 1, 3, 7, 15)
     """
-    if not (np.isfinite(scale) and scale >= 1):
-        raise ValueError(f"scale: expected a size of at least 1 pixel, got {scale!r}")
+    check_scale(scale, least=1)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
         raise ValueError(f"levels: expected a whole number >= 2, got {levels!r}")
-    return tuple(int(round(scale * 2.0**i)) - 1 for i in range(levels))
+    return tuple(box_radius(scale * 2.0**i) for i in range(levels))
 
 
 @eqx.filter_jit
@@ -393,7 +415,7 @@ def adaptive_background(L, scale=1.0, levels=8, tolerance=0.05, floor=LUMINANCE_
     sizes and a relative tolerance (a Weber-like criterion, since the
     visual system is log-linear).
     """
-    _check_luminance(L)
+    L = _luminance(L)
     check_value("tolerance", tolerance, lambda v: v > 0, "a positive relative change")
     stack = jnp.maximum(lowpass_stack(L, octave_radii(scale, levels)), floor)
     change = jnp.abs(stack[..., 1:, :, :] - stack[..., :-1, :, :]) / stack[..., :-1, :, :]
@@ -428,7 +450,7 @@ def multiscale_background(L, scale=1.0, levels=8, floor=LUMINANCE_FLOOR):
     array, shape (..., H, W)
         Background, cd/m2.
     """
-    _check_luminance(L)
+    L = _luminance(L)
     stack = lowpass_stack(L, octave_radii(scale, levels))
     return jnp.exp(jnp.mean(jnp.log(jnp.maximum(stack, floor)), axis=-3))
 
@@ -444,6 +466,19 @@ BACKGROUNDS = {
     "adaptive": adaptive_background,
     "multiscale": multiscale_background,
 }
+
+
+#: The local estimators whose size is a box's (:func:`box_radius`): at least 1 pixel.
+BOX_SIZED = ("box", "adaptive", "multiscale")
+
+
+def check_background(name, scale, names=("background", "background_scale")):
+    """Refuse an estimator ``name`` not in :data:`BACKGROUNDS`, or a size
+    ``scale`` it cannot take (:func:`check_scale`); ``names`` name the two
+    in the message (fields of a ``Params``, or options of the command line)."""
+    if name not in BACKGROUNDS:
+        raise ValueError(f"{names[0]}: expected one of {tuple(BACKGROUNDS)}, got {name!r}")
+    check_scale(scale, least=1 if name in BOX_SIZED else 0, name=names[1])
 
 
 def estimate_background(L, name, scale):

@@ -139,15 +139,7 @@ class Params(eqx.Module):
     def __check_init__(self):
         if self.goal not in goals.GOALS:
             raise ValueError(f"goal: expected one of {goals.GOALS}, got {self.goal!r}")
-        if self.background not in goals.BACKGROUNDS:
-            raise ValueError(
-                f"background: expected one of {tuple(goals.BACKGROUNDS)}, got {self.background!r}"
-            )
-        if not self.background_scale > 0:
-            raise ValueError(
-                "background_scale: expected a positive size in pixels, "
-                f"got {self.background_scale!r}"
-            )
+        goals.check_background(self.background, self.background_scale)
         check_fields(self, positive=POSITIVE_FIELDS)
         for name in ("display_B_cone", "goal_fraction"):
             check_value(name, getattr(self, name), lambda v: (v > 0) & (v <= 1), "in (0, 1]")
