@@ -617,34 +617,14 @@ def render(args, console):
     )
 
 
-def psychometric_fit(args, console):
-    """``jaxadapt psychometric fit``: fits, group tests and figures into ``--out``."""
-    import jax
+def _group_tests(table, control, method):
+    """The rows of ``group_test.csv``: each condition's PSEs against the
+    ``control``'s (:func:`jaxadapt.psychophysics.stats.compare`), none when
+    the table has no such condition."""
     import jax.numpy as jnp
 
-    from jaxadapt import figures
-    from jaxadapt.psychophysics import fit as psyfit
-    from jaxadapt.psychophysics import stats, trials
+    from jaxadapt.psychophysics import stats
 
-    if args.resamples < 0 or args.resamples == 1:
-        raise UsageError(
-            f"--resamples: expected 0 (a Wald interval) or at least 2, got {args.resamples}"
-        )
-    trial_table = trials.read_trials(args.trials)
-    conditions = list(dict.fromkeys(trial_table.condition))
-    if args.control is not None and args.control not in conditions:
-        raise UsageError(
-            f"--control: expected one of the conditions of {args.trials} "
-            f"({', '.join(map(str, conditions))}), got {args.control!r}"
-        )
-    control = args.control or "control"
-    groups = trials.group_trials(trial_table)
-    # In float64, as statsmodels and MATLAB fit: in float32 the log-likelihood
-    # of a few thousand trials a level is off by 0.01 (binomial terms that
-    # cancel), and its fits stop at slopes whose rounding matters.
-    with jax.enable_x64(True):
-        table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
-    out = args.out
     condition = np.asarray(table.condition)
     rows = []
     for other in dict.fromkeys(table.condition):
@@ -653,7 +633,7 @@ def psychometric_fit(args, console):
         c = stats.compare(
             jnp.asarray(table.pse[condition == other]),
             jnp.asarray(table.pse[condition == control]),
-            method=args.ranksum,
+            method=method,
         )
         rows.append(
             {
@@ -671,10 +651,42 @@ def psychometric_fit(args, console):
                 "n_control": int(c.test.n_y),
             }
         )
+    return rows
+
+
+def psychometric_fit(args, console):
+    """``jaxadapt psychometric fit``: fits, group tests and figures into ``--out``."""
+    import jax
+
+    from jaxadapt import figures
+    from jaxadapt.psychophysics import fit as psyfit
+    from jaxadapt.psychophysics import trials
+
+    if args.resamples < 0 or args.resamples == 1:
+        raise UsageError(
+            f"--resamples: expected 0 (a Wald interval) or at least 2, got {args.resamples}"
+        )
+    trial_table = trials.read_trials(args.trials)
+    conditions = list(dict.fromkeys(trial_table.condition))
+    if args.control is not None and args.control not in conditions:
+        raise UsageError(
+            f"--control: expected one of the conditions of {args.trials} "
+            f"({', '.join(map(str, conditions))}), got {args.control!r}"
+        )
+    control = args.control or "control"
+    groups = trials.group_trials(trial_table)
+    # In float64, as statsmodels and MATLAB fit: in float32 the log-likelihood
+    # of a few thousand trials a level is off by 0.01 (binomial terms that
+    # cancel), and its fits stop at slopes whose rounding matters; the group
+    # test's normal tail 2 Phi(-|z|) is 0 in float32 from z = 13.
+    with jax.enable_x64(True):
+        table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
+        rows = _group_tests(table, control, args.ranksum)
+    out = args.out
     # Data that place no PSE (every response the same, one level, or no
     # slope): said. (Under separation the PSE lies between two levels; the
     # slope is the prior's, and the flags say so.)
-    no_pse = (np.asarray(table.flags) & (psyfit.ALL_SAME | psyfit.SINGLE_LEVEL | psyfit.FLAT)) > 0
+    no_pse = (np.asarray(table.flags) & psyfit.NO_PSE) > 0
     for i in np.flatnonzero(no_pse):
         why = ", ".join(psyfit.flag_names(int(table.flags[i])))
         console.print(

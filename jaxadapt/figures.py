@@ -130,17 +130,38 @@ def plot_psychometric(path, groups, table, columns=4):
 
 
 def plot_pse(path, table):
-    """Fig. 14 of Jacobs et al. (2015): the PSEs of every condition, with medians."""
+    """Fig. 14 of Jacobs et al. (2015): the PSEs of every condition, with medians.
+
+    A PSE that the data do not place (``fit.NO_PSE``: every response the
+    same, one level, no slope) is set by the fit's prior and can lie
+    thousands of log units away; the axis spans the others (and 0), and
+    such a PSE is drawn hollow, at the axis' edge when beyond it (a
+    triangle pointing its way). The medians include them, as the group
+    test does. Returns the figure, saved to ``path``.
+    """
+    from jaxadapt.psychophysics.fit import NO_PSE
+
     conditions = list(dict.fromkeys(table.condition))
     fig = Figure(figsize=(1.8 + 1.4 * len(conditions), 3.8))
     ax = fig.subplots()
+    pse = np.asarray(table.pse, float)
+    unplaced = (np.asarray(table.flags) & NO_PSE) > 0
+    placed = np.append(pse[~unplaced & np.isfinite(pse)], 0.0)
+    pad = max(0.1 * np.ptp(placed), 0.05)
+    low, high = placed.min() - pad, placed.max() + pad
     for i, cond in enumerate(conditions):
-        pse = table.pse[np.asarray(table.condition) == cond]
-        jitter = np.linspace(-0.12, 0.12, len(pse)) if len(pse) > 1 else np.zeros(1)
-        ax.plot(i + jitter, pse, "o", color=f"C{i}", alpha=0.7)
-        ax.plot([i - 0.25, i + 0.25], [np.median(pse)] * 2, color="k", lw=2)
+        here = np.asarray(table.condition) == cond
+        jitter = np.linspace(-0.12, 0.12, here.sum()) if here.sum() > 1 else np.zeros(1)
+        x, y, hollow = i + jitter, np.clip(pse[here], low, high), unplaced[here]
+        ax.plot(x[~hollow], y[~hollow], "o", color=f"C{i}", alpha=0.7)
+        for marker, where in (("o", y == pse[here]), ("^", y < pse[here]), ("v", y > pse[here])):
+            shown = hollow & where
+            ax.plot(x[shown], y[shown], marker, mfc="none", color=f"C{i}", ls="none")
+        ax.plot([i - 0.25, i + 0.25], [np.clip(np.median(pse[here]), low, high)] * 2, "k", lw=2)
+    ax.set_ylim(low, high)
     ax.axhline(0.0, color="0.6", lw=0.8, ls=":")
     ax.set_xticks(range(len(conditions)), conditions)
     ax.set(ylabel="PSE (log10 units)", title="points of subjective equality")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+    return fig

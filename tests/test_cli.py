@@ -506,6 +506,57 @@ def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
     assert float(row["b1"]) == pytest.approx(glm.params[1], rel=1e-8)
 
 
+def test_psychometric_group_test_p_is_float64(tmp_path, capsys):
+    # 170 participants whose PSEs separate the conditions completely: z =
+    # 15.9, p = 7.6e-57 (SciPy's mannwhitneyu), which the group test, run in
+    # float32 after the float64 fits, wrote as 0.
+    from scipy.stats import mannwhitneyu
+
+    levels, n = np.linspace(-0.3, 0.3, 5), 40
+    rows = ["participant,condition,level,n_yes,n_total"]
+    for i in range(170):
+        for condition, pse in (("control", -0.1), ("test", 0.1)):
+            p = norm_cdf((levels - pse - 0.001 * i) / 0.1)
+            rows += [
+                f"p{i},{condition},{x},{round(n * q)},{n}" for x, q in zip(levels, p, strict=True)
+            ]
+    trials = tmp_path / "trials.csv"
+    trials.write_text("\n".join(rows) + "\n")
+    with jax.enable_x64(False):
+        status, err = _run(
+            capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(tmp_path)
+        )
+    assert status == 0, err
+    fits = list(csv.DictReader(open(tmp_path / "fits.csv")))
+    pse = {c: [float(r["pse"]) for r in fits if r["condition"] == c] for c in ("control", "test")}
+    (row,) = list(csv.DictReader(open(tmp_path / "group_test.csv")))
+    expected = mannwhitneyu(pse["test"], pse["control"], method="asymptotic", use_continuity=False)
+    assert float(row["p"]) == pytest.approx(expected.pvalue, rel=1e-6)
+    assert 0 < float(row["p"]) < 1e-50
+
+
+def test_pse_figure_spans_the_placed_pses(tmp_path):
+    # An all-"yes" participant's PSE, set by the prior at -7.3e5, made the
+    # axis run to -7e5 and flattened every other PSE onto 0.
+    from jaxadapt import figures
+    from jaxadapt.psychophysics import fit as psyfit
+    from jaxadapt.psychophysics.trials import FitTable
+
+    pse = np.array([-7.3e5, 0.02, -0.05, 0.12, 0.08, 0.1])
+    flags = np.array([psyfit.ALL_SAME, 0, 0, 0, 0, 0])
+    table = FitTable(
+        tuple(f"p{i}" for i in range(3)) * 2,
+        ("control",) * 3 + ("test",) * 3,
+        pse,
+        *[np.zeros(6)] * 7,
+        np.ones(6, bool),
+        flags,
+    )
+    low, high = figures.plot_pse(tmp_path / "pse.png", table).axes[0].get_ylim()
+    assert -0.11 < low < -0.05 and 0.12 < high < 0.2
+    assert (tmp_path / "pse.png").stat().st_size > 0
+
+
 def norm_cdf(z):
     from scipy.special import ndtr
 

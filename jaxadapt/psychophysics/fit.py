@@ -125,6 +125,9 @@ FLAG_NAMES = {
 }
 #: Flags under which the maximum-likelihood estimate does not exist.
 NO_MLE = ALL_SAME | SEPARATION | SINGLE_LEVEL
+#: Flags under which the data place no PSE: it is set by the prior and the
+#: least slope (under separation it still lies between two levels).
+NO_PSE = ALL_SAME | SINGLE_LEVEL | FLAT
 
 #: Standard deviation of the weak Gaussian priors: on the standardised
 #: intercept and slope when the MLE does not exist (``NO_MLE``), and on the

@@ -373,11 +373,21 @@ _FORMATS = {
 }
 
 
+def _cell(value):
+    """A number as the shortest decimal that reads back to the same value in
+    its dtype (not ``str``: colour-science, which jaxadapt imports, sets
+    NumPy's printing to its 1.13 style, 6 significant digits in float32 and
+    12 in float64); anything else as ``str``."""
+    if isinstance(value, (float, np.floating)):
+        return repr(float(np.format_float_positional(value, unique=True, trim="-")))
+    return str(value)
+
+
 def write_fits(path, table):
     """Write ``fits.csv``: a header of ``FIT_COLUMNS`` and one row per group.
 
-    Numbers are written as NumPy prints them (the shortest decimal that
-    reads back to the same value in their dtype), ``converged`` as ``true``/``false``
+    Numbers are written as the shortest decimal that reads back to the same
+    value in their dtype (:func:`_cell`), ``converged`` as ``true``/``false``
     and ``flags`` as flag names joined by ``|`` (empty when none). The file
     appears only once complete (:func:`jaxadapt.io.atomic_path`).
     """
@@ -386,7 +396,7 @@ def write_fits(path, table):
         writer.writerow(FIT_COLUMNS)
         for row in zip(*table, strict=True):
             cells = zip(FIT_COLUMNS, row, strict=True)
-            writer.writerow([_FORMATS.get(c, str)(v) for c, v in cells])
+            writer.writerow([_FORMATS.get(c, _cell)(v) for c, v in cells])
 
 
 def fit_file(trials_path, fits_path, *, key, **options):
