@@ -481,6 +481,18 @@ def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def _fit_in_float32(capsys, rows, folder):
+    """``psychometric fit`` of a table of ``rows`` (lines) into ``folder``,
+    with float64 off as for a user (the tests switch it on)."""
+    trials = folder / "trials.csv"
+    trials.write_text("\n".join(rows) + "\n")
+    with jax.enable_x64(False):
+        status, err = _run(
+            capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(folder)
+        )
+    assert status == 0, err
+
+
 def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
     # 3,000 trials a level: in float32 (the command's precision before, as
     # JAX's default) the log-likelihood was 0.01 off statsmodels' (binomial
@@ -489,13 +501,7 @@ def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
     levels, n = np.linspace(-0.3, 0.3, 5), 3000
     k = np.array([300, 900, 1500, 2100, 2700])
     rows = ["level,n_yes,n_total"] + [f"{x},{y},{n}" for x, y in zip(levels, k, strict=True)]
-    trials = tmp_path / "trials.csv"
-    trials.write_text("\n".join(rows) + "\n")
-    with jax.enable_x64(False):
-        status, err = _run(
-            capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(tmp_path)
-        )
-    assert status == 0, err
+    _fit_in_float32(capsys, rows, tmp_path)
     (row,) = list(csv.DictReader(open(tmp_path / "fits.csv")))
     glm = sm.GLM(
         np.c_[k, n - k],
@@ -520,13 +526,7 @@ def test_psychometric_group_test_p_is_float64(tmp_path, capsys):
             rows += [
                 f"p{i},{condition},{x},{round(n * q)},{n}" for x, q in zip(levels, p, strict=True)
             ]
-    trials = tmp_path / "trials.csv"
-    trials.write_text("\n".join(rows) + "\n")
-    with jax.enable_x64(False):
-        status, err = _run(
-            capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(tmp_path)
-        )
-    assert status == 0, err
+    _fit_in_float32(capsys, rows, tmp_path)
     fits = list(csv.DictReader(open(tmp_path / "fits.csv")))
     pse = {c: [float(r["pse"]) for r in fits if r["condition"] == c] for c in ("control", "test")}
     (row,) = list(csv.DictReader(open(tmp_path / "group_test.csv")))
