@@ -262,6 +262,7 @@ def test_no_nan_across_the_range_of_vision(log_l):
         (lambda L: goal.adaptive_background(L, levels=1), "levels"),
         (lambda L: goal.adaptive_background(L, scale=0.5), "scale"),
         (lambda L: goal.box_background(L, scale=0.4), "scale"),
+        (lambda L: goal.white_fraction(L, percentile=150.0), "percentile"),
         (lambda L: goal.gaussian_background(L, scale=float("inf")), "scale"),
         (lambda L: goal.box_background(L, scale="8"), "scale"),
         (lambda L: goal.multiscale_background(L, levels=2.5), "levels"),

@@ -58,6 +58,16 @@ def test_inverse_undoes_the_response(L, sigma, B):
         assert float(r.naka_rushton_inverse(R, sigma, B)) == pytest.approx(L, rel=1e-6)
 
 
+def test_inverses_outside_their_range_are_nan_not_black():
+    # power() maps a negative base to 0: a response beyond saturation (or
+    # negative) came back as 0 cd/m2.
+    for R, expected in ((0.6, np.nan), (-0.1, np.nan), (0.5, np.inf), (0.0, 0.0)):
+        np.testing.assert_equal(float(r.naka_rushton_inverse(R, 2.0, B=0.5)), expected)
+    for R, expected in ((1.1, np.nan), (-0.1, np.nan), (1.0016, np.inf), (0.0, 0.0)):
+        L = r.naka_rushton_sum_inverse(jnp.asarray(R), 722.0, 0.0016, 646.0, 1.0)
+        np.testing.assert_equal(float(L), expected)
+
+
 @given(L1=LUMINANCE, L2=LUMINANCE, A=LUMINANCE)
 def test_response_is_monotone_and_bounded(L1, L2, A):
     lo, hi = sorted((L1, L2))

@@ -81,6 +81,7 @@ def white_fraction(L, fraction=0.2, percentile=99.0, floor=LUMINANCE_FLOOR):
     array, shape (...)
         Goal, cd/m2.
     """
+    check_value("percentile", percentile, lambda v: (v >= 0) & (v <= 100), "a value in [0, 100]")
     flat = L.reshape(L.shape[:-2] + (-1,))
     white = jnp.percentile(flat, percentile, axis=-1)
     return jnp.maximum(fraction * white, floor)

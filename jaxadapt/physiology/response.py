@@ -83,14 +83,22 @@ def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
     Returns
     -------
     array
-        Luminance in cd/m2.
+        Luminance in cd/m2: ``inf`` at ``R = B``, NaN for ``R`` outside
+        ``[0, B]`` (no luminance evokes it; ``power`` would give 0).
 
     Examples
     --------
     >>> float(naka_rushton_inverse(0.25, 2.0, B=0.5))
     2.0
     """
-    return sigma * power(R / (B - R), 1.0 / n)
+    R = jnp.asarray(R)
+    return _in_range(R, B, sigma * power(R / (B - R), 1.0 / n))
+
+
+def _in_range(R, B, value):
+    """``value`` of an inverse response where ``0 <= R < B``, ``inf`` where
+    ``R = B`` (saturation) and NaN elsewhere."""
+    return jnp.where((R >= 0) & (R < B), value, jnp.where(R == B, jnp.inf, jnp.nan))
 
 
 def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
@@ -132,7 +140,8 @@ def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     Returns
     -------
     array
-        ``ln L``, L in cd/m2.
+        ``ln L``, L in cd/m2: ``inf`` at ``R = B_1 + B_2``, NaN for ``R``
+        outside ``[0, B_1 + B_2]``.
 
     Examples
     --------
@@ -150,7 +159,7 @@ def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     tiny = jnp.finfo(jnp.result_type(u)).tiny
     positive = u > tiny
     ln_u = jnp.where(positive, jnp.log(jnp.where(positive, u, 1.0)), jnp.log(tiny))
-    return jnp.log(sigma_2) + ln_u / n
+    return _in_range(R, B_1 + B_2, jnp.log(sigma_2) + ln_u / n)
 
 
 def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
