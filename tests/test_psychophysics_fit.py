@@ -322,3 +322,16 @@ def test_fitted_lapse_rates_in_float32_reach_the_optimum_whatever_the_batch():
     assert float(batch.loglik[0]) == pytest.approx(float(alone.loglik[0]), abs=1e-3)
     short = np.asarray(f64.loglik) - np.asarray(batch.loglik, float)
     assert np.all(short[np.asarray(batch.converged)] < 0.01)
+
+
+def test_deviance_is_not_negative_in_float32():
+    # One level among zero-trial ones: loglik and the saturated loglik agree
+    # but for rounding, which made the deviance -1.9e-6 in float32.
+    x = np.log10(np.array([14.0, 19, 27, 35, 49]) / 27)
+    with jax.enable_x64(False):
+        f = F.fit(
+            jnp.asarray(x, jnp.float32),
+            jnp.array([0, 0, 12.0, 0, 0]),
+            jnp.array([0, 0, 30.0, 0, 0]),
+        )
+    assert float(f.deviance) >= 0

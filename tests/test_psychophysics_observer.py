@@ -230,6 +230,9 @@ def test_true_pse_has_the_implicit_gradient_and_weights_for_pse_inverts_it(mesop
     found = O.true_pse(s, dataclasses.replace(observer, weights=w))
     np.testing.assert_allclose(found[1], 0.13, atol=1e-9)
     np.testing.assert_allclose(w[1], 2 * w[2])
+    # Under jit (the check's float() of a traced value failed there).
+    jitted = jax.jit(lambda p: O.weights_for_pse(s, jnp.array([0.0, 2.0, 1.0]), p, bias=0.01))
+    np.testing.assert_allclose(jitted(0.13), w, rtol=1e-12)
     with pytest.raises(ValueError, match="direction"):
         O.weights_for_pse(s, jnp.array([1.0, 0.0, 0.0]), 0.13)  # no afterimage here
 
@@ -295,3 +298,6 @@ def test_bad_inputs_are_named():
         with pytest.raises(eqx.EquinoxRuntimeError, match="noise > 0"):
             # 3 observers: the batch of the vmapped experiment above (one compilation)
             O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 3))
+        # probability itself gave 0/0 = NaN (noise 0) or values beyond [0, 1].
+        with pytest.raises(eqx.EquinoxRuntimeError, match="observer: expected noise > 0"):
+            O.probability(O.plain_stimuli(A), bad)

@@ -164,7 +164,8 @@ class Fit(NamedTuple):
         3,000 trials a level and more beyond (``jaxadapt psychometric fit``
         fits in float64).
     deviance : array
-        ``2 (loglik_saturated - loglik)``, rounded likewise.
+        ``2 (loglik_saturated - loglik)``, rounded likewise, and set to 0
+        where rounding makes it negative.
     converged : array of bool
         Whether the optimiser met its tolerance within ``max_steps`` and a
         Newton step from the estimate (exact Hessian) would move it by at
@@ -578,7 +579,7 @@ def _fit_one(x, k, n, guess, lapse, max_steps):
         se_pse=_se(g_pse @ cov_a @ g_pse),
         se_sigma=_se(cov_a[1, 1]) * data.s / a1_safe**2,
         loglik=loglik,
-        deviance=2.0 * (loglik_sat - loglik),
+        deviance=jnp.maximum(2.0 * (loglik_sat - loglik), 0.0),  # >= 0 but for rounding
         converged=converged,
         flags=flags.astype(jnp.int32),
     )

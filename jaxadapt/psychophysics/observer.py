@@ -655,6 +655,13 @@ def _p_yes(mean, observer, sign):
     return 0.5 * observer.lapse + (1.0 - observer.lapse) * ndtr(z)
 
 
+def _checked(observer, name="observer"):
+    """``observer`` (or a batch), with a runtime error naming ``name``
+    unless every noise is positive and every lapse in ``[0, 1)``."""
+    bad = jnp.any(~(observer.noise > 0) | ~(observer.lapse >= 0) | ~(observer.lapse < 1))
+    return eqx.error_if(observer, bad, f"{name}: expected noise > 0 and 0 <= lapse < 1")
+
+
 def probability(stimuli, observer, test_first=None):
     """Probability of "test brighter" per condition and level.
 
@@ -681,6 +688,7 @@ def probability(stimuli, observer, test_first=None):
     >>> p.shape, round(float(p[0, 2]), 4)  # level 0: Phi(0.05 / 0.2)
     ((2, 5), 0.5987)
     """
+    observer = _checked(observer)
     mean = decision_mean(stimuli, observer)
     if test_first is None:
         return 0.5 * (_p_yes(mean, observer, 1.0) + _p_yes(mean, observer, -1.0))
@@ -691,6 +699,7 @@ def trial_probability(stimuli, observer, trials):
     """Probability of "test brighter" on each trial of a
     :class:`jaxadapt.psychophysics.design.Trials` (its condition, level and
     order), shape ``(n_trials,)``."""
+    observer = _checked(observer)
     mean = decision_mean(stimuli, observer)[trials.condition, trials.level_index]
     return _p_yes(mean, observer, jnp.where(trials.test_first, 1.0, -1.0))
 
@@ -746,8 +755,7 @@ def _check_n(n):
 
 @eqx.filter_jit
 def _simulate_observers(key, protocol, stimuli, observers):
-    bad = jnp.any(~(observers.noise > 0) | ~(observers.lapse >= 0) | ~(observers.lapse < 1))
-    observers = eqx.error_if(observers, bad, "observers: expected noise > 0 and 0 <= lapse < 1")
+    observers = _checked(observers, "observers")
     n = observers.noise.shape[0]
     keys = jax.vmap(_observer_key, (None, 0))(key, jnp.arange(n))
     trials, responses = jax.vmap(lambda k, o: run_observer(k, protocol, stimuli, o))(
@@ -935,7 +943,8 @@ def weights_for_pse(stimuli, direction, pse, condition=1, bias=0.0):
     ------
     ValueError
         When the cues along ``direction`` do not differ there (no weight
-        can move the PSE).
+        can move the PSE); under ``jit`` (traced values) that is not
+        checked, and the weights are then infinite or NaN.
 
     Examples
     --------
@@ -950,7 +959,7 @@ def weights_for_pse(stimuli, direction, pse, condition=1, bias=0.0):
     lum = _interp(jnp.asarray(pse), stimuli.levels, d_lum[condition])
     cue = _interp(jnp.asarray(pse), stimuli.levels, jnp.moveaxis(d_cues[condition], -1, 0))
     along = jnp.dot(direction, cue)
-    if not abs(float(along)) > 0:
+    if not isinstance(along, jax.core.Tracer) and not abs(float(along)) > 0:
         raise ValueError(
             f"direction: expected cues that differ between test and standard at {pse}, "
             f"got a difference of {float(along)}"
