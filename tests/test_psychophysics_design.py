@@ -168,6 +168,14 @@ def test_training_accuracy_exclusion_and_counts():
     [
         (dict(standard=0.0), "standard, tests: expected positive"),
         (dict(exclusion=1.5), r"exclusion: expected a fraction in \(0, 1\]"),
+        (dict(tests=(float("nan"), 27.0)), "standard, tests: expected positive, finite"),
+        (dict(presentation_s=-1.0), "presentation_s: expected a positive duration"),
+        (dict(ambient=-1.0), "ambient: expected a finite value >= 0"),
+        (dict(conditions=("control", "control")), "conditions: expected distinct names"),
+        (
+            dict(blocks=(design.Block("b", (("control", 0),)),)),
+            "blocks: expected at least one trial",
+        ),
         (dict(blocks=(design.Block("b", (("placebo", 2),)),)), "expected conditions from"),
         (dict(blocks=(design.Block("b", (("control", -1),)),)), "expected counts >= 0"),
         (dict(blocks=(design.Block("b", (("control", 1),), levels=(7,)),)), "levels: expected"),

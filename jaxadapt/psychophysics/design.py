@@ -90,17 +90,30 @@ class Protocol(eqx.Module):
     ambient: float = 1.8e-4
 
     def __check_init__(self):
-        if not self.standard > 0 or not self.tests or min(self.tests) <= 0:
+        luminances = np.asarray((self.standard, *self.tests), float)
+        if not self.tests or not np.all(np.isfinite(luminances) & (luminances > 0)):
             raise ValueError(
-                f"standard, tests: expected positive luminances in cd/m2, "
+                f"standard, tests: expected positive, finite luminances in cd/m2, "
                 f"got {self.standard!r} and {self.tests!r}"
             )
+        if len(set(self.conditions)) != len(self.conditions):
+            raise ValueError(f"conditions: expected distinct names, got {self.conditions!r}")
         if not 0 < self.exclusion <= 1:
             raise ValueError(f"exclusion: expected a fraction in (0, 1], got {self.exclusion!r}")
+        if not (np.isfinite(self.presentation_s) and self.presentation_s > 0):
+            raise ValueError(
+                f"presentation_s: expected a positive duration in s, got {self.presentation_s!r}"
+            )
+        for name in ("blank_s", "dark_adaptation_s", "ambient"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: expected a finite value >= 0, got {value!r}")
         if not self.blocks:
             raise ValueError("blocks: expected at least one block, got none")
         for block in self.blocks:
             _check_block(self, block)
+        if not any(n for block in self.blocks for _, n in block.repetitions):
+            raise ValueError("blocks: expected at least one trial, got blocks of 0 repetitions")
 
     @property
     def levels(self):
