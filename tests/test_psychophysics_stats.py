@@ -257,3 +257,14 @@ def test_float32_stays_float32():
     for method in ("auto", "exact", "asymptotic"):
         r = stats.ranksum(x, y, method=method)
         assert r.p.dtype == jnp.float32 and r.z.dtype == jnp.float32
+
+
+def test_an_empty_group_gives_nan_medians_as_a_masked_out_one():
+    # nanmedian of no entries at all raised IndexError (median,
+    # hodges_lehmann and so compare); a group masked out gave NaN.
+    empty, y = jnp.zeros(0), jnp.array([0.5, 3.0, 4.0])
+    masked = stats.compare(jnp.ones(2), y, x_mask=jnp.zeros(2, bool))
+    c = stats.compare(empty, y)
+    assert np.isnan(c.median_x) and np.isnan(c.shift) and np.isnan(masked.median_x)
+    assert float(c.median_y) == 3.0 and float(c.test.p) == float(masked.test.p)
+    assert stats.median(jnp.zeros((2, 0))).shape == (2,)

@@ -122,6 +122,8 @@ def median(x, mask=None):
     2.0
     """
     x = jnp.asarray(x)
+    if x.shape[-1] == 0:  # no entries at all (nanmedian would index into none)
+        return jnp.full(x.shape[:-1], jnp.nan, jnp.result_type(x, float))
     return jnp.nanmedian(jnp.where(_mask(x, mask), x, jnp.nan), axis=-1)
 
 
