@@ -218,6 +218,12 @@ def test_bad_input_is_named():
             F.fit(X, np.zeros(5), 30, max_steps=steps)
     with pytest.raises(ValueError, match="method: expected one of"):
         F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, method="bca")
+    # No levels gave ZeroDivisionError; 2.5 resamples ran 2.
+    with pytest.raises(ValueError, match=r"levels: expected .* got shape \(0,\), no levels"):
+        F.fit(np.zeros(0), np.zeros(0), np.zeros(0))
+    for bad in (2.5, True, 1):
+        with pytest.raises(ValueError, match="n_resamples: expected a whole number >= 2"):
+            F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, n_resamples=bad)
     import equinox as eqx
 
     for n_yes, n_total in ((np.array([1, 2, 31, 4, 5]), 30), (np.zeros(5), [30] * 4 + [np.inf])):

@@ -268,3 +268,15 @@ def test_an_empty_group_gives_nan_medians_as_a_masked_out_one():
     assert np.isnan(c.median_x) and np.isnan(c.shift) and np.isnan(masked.median_x)
     assert float(c.median_y) == 3.0 and float(c.test.p) == float(masked.test.p)
     assert stats.median(jnp.zeros((2, 0))).shape == (2,)
+
+
+def test_bad_groups_and_masks_are_named():
+    # JAX's "Zero-dimensional arrays cannot be concatenated" and its
+    # broadcasting error before.
+    y = jnp.array([0.5, 3.0, 4.0])
+    with pytest.raises(ValueError, match="^x: expected a group on the last axis, got a scalar"):
+        stats.ranksum(jnp.array(1.0), y)
+    with pytest.raises(
+        ValueError, match=r"^y_mask: expected a shape that broadcasts to y's \(3,\)"
+    ):
+        stats.ranksum(y, y, y_mask=jnp.ones(2, bool))

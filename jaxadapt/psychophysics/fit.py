@@ -600,8 +600,11 @@ def _inputs(levels, n_yes, n_total, guess, lapse):
         raise ValueError(
             f"levels, n_yes, n_total: expected broadcastable shapes, got {got}"
         ) from None
-    if not shape:
-        raise ValueError("levels: expected an array with levels on the last axis, got a scalar")
+    if not shape or shape[-1] == 0:
+        raise ValueError(
+            "levels: expected an array with levels on the last axis, got "
+            + ("a scalar" if not shape else f"shape {shape}, no levels")
+        )
     dtype = jnp.result_type(*(a.dtype for a in arrays), float)
     levels, n_yes, n_total = (jnp.broadcast_to(a.astype(dtype), shape) for a in arrays)
     guess, lapse = (
@@ -799,8 +802,9 @@ def bootstrap(
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence: expected a number in (0, 1), got {confidence!r}")
-    if int(n_resamples) < 2:
-        raise ValueError(f"n_resamples: expected at least 2, got {n_resamples!r}")
+    whole = hasattr(n_resamples, "__index__") and not isinstance(n_resamples, bool)
+    if not whole or n_resamples < 2:
+        raise ValueError(f"n_resamples: expected a whole number >= 2, got {n_resamples!r}")
     args = _inputs(levels, n_yes, n_total, guess, lapse)
     fits = _fit(*args, max_steps)
     parametric = jnp.asarray(method == "parametric")

@@ -111,6 +111,18 @@ def _mask(x, mask):
     return jnp.broadcast_to(jnp.asarray(mask, bool), jnp.shape(x))
 
 
+def _checked_mask(x, mask, name):
+    """:func:`_mask`, with an error naming ``name_mask`` when it does not
+    broadcast to ``name``'s shape."""
+    try:
+        return _mask(x, mask)
+    except ValueError:
+        raise ValueError(
+            f"{name}_mask: expected a shape that broadcasts to {name}'s {x.shape}, "
+            f"got {jnp.shape(mask)}"
+        ) from None
+
+
 def median(x, mask=None):
     """Median over the last axis of the entries where ``mask`` is true.
 
@@ -312,9 +324,12 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     if method not in ("auto", "exact", "asymptotic"):
         raise ValueError(f"method: expected 'auto', 'exact' or 'asymptotic', got {method!r}")
     x, y = jnp.asarray(x), jnp.asarray(y)
+    for name, a in (("x", x), ("y", y)):
+        if a.ndim == 0:
+            raise ValueError(f"{name}: expected a group on the last axis, got a scalar")
     dtype = jnp.result_type(x, y, float)
     x, y = x.astype(dtype), y.astype(dtype)
-    x_valid, y_valid = _mask(x, x_mask), _mask(y, y_mask)
+    x_valid, y_valid = _checked_mask(x, x_mask, "x"), _checked_mask(y, y_mask, "y")
     missing = ~jnp.all(jnp.isfinite(x) | ~x_valid) | ~jnp.all(jnp.isfinite(y) | ~y_valid)
     x = eqx.error_if(x, missing, "x, y: expected finite values where valid (mask out the others)")
     batch = jnp.broadcast_shapes(x.shape[:-1], y.shape[:-1])
