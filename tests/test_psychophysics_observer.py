@@ -288,6 +288,10 @@ def test_trial_tables_round_trip_through_the_reader(tmp_path):
 
 
 def test_bad_inputs_are_named():
+    # A population of negative noise drew observers of negative noise.
+    for field, value in (("noise", -1.0), ("lapse", 1.0), ("noise_spread", -0.1)):
+        with pytest.raises(ValueError, match=f"^Population.{field}: expected"):
+            O.Population(**{field: value})
     with pytest.raises(ValueError, match="n_observers"):
         O.simulate(jax.random.key(0), A, O.plain_stimuli(A), O.Population(), 0)
     with pytest.raises(ValueError, match="protocol"):

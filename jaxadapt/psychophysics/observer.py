@@ -86,7 +86,7 @@ from jaxadapt.operators import jacobs2015
 from jaxadapt.operators.goal import LUMINANCE_FLOOR
 from jaxadapt.psychophysics import design
 from jaxadapt.psychophysics import trials as trial_tables
-from jaxadapt.spatial import gaussian_blur
+from jaxadapt.spatial import check_value, gaussian_blur
 
 #: The cue terms of the brightness signal, in the order of ``weights``.
 CUES = ("afterimage", "desaturation", "blur")
@@ -593,6 +593,16 @@ class Population(eqx.Module):
     lapse_spread: jax.Array = eqx.field(default=0.5, converter=_array)
     weights: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
     weight_spread: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
+
+    def __check_init__(self):
+        check_value("Population.noise", self.noise, lambda v: v > 0, "a positive median noise")
+        check_value(
+            "Population.lapse", self.lapse, lambda v: (v >= 0) & (v < 1), "a median in [0, 1)"
+        )
+        for name in ("noise_spread", "bias_spread", "order_bias_spread", "lapse_spread"):
+            check_value(
+                f"Population.{name}", getattr(self, name), lambda v: v >= 0, "a spread >= 0"
+            )
 
 
 #: Default populations of the two presets. The paper chose the afterimage
