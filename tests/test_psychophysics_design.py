@@ -2,6 +2,7 @@
 
 import csv
 import itertools
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -161,6 +162,10 @@ def test_training_accuracy_exclusion_and_counts():
     # Training trials are left out, so flipping them does not change counts.
     np.testing.assert_array_equal(n_yes[0], n_yes[1])
     np.testing.assert_array_equal(n_yes[0], [[0, 0, 0, 30, 30]] * 2)
+    # One answer short raised JAX's own shape errors, naming no input.
+    for fn in (design.training_accuracy, partial(design.counts, A)):
+        with pytest.raises(ValueError, match=r"^responses: expected shape \(\.\.\., 320\)"):
+            fn(t, responses[:, 1:])
 
 
 @pytest.mark.parametrize(

@@ -213,6 +213,9 @@ def test_bad_input_is_named():
         F.fit(X, np.zeros(4), 30)
     with pytest.raises(ValueError, match=r"lapse: expected a fixed rate or bounds"):
         F.fit(X, np.zeros(5), 30, lapse=(0.1, 0.05))
+    # A rate of another batch shape raised JAX's broadcasting error, naming no input.
+    with pytest.raises(ValueError, match=r"^guess: expected a rate of the batch shape \(4,\)"):
+        F.fit(X, np.zeros((4, 5)), 30, guess=np.full(3, 0.1))
     for steps in (0, -5):  # ran zero steps and reported the start
         with pytest.raises(ValueError, match=rf"^max_steps: expected at least 1, got {steps}"):
             F.fit(X, np.zeros(5), 30, max_steps=steps)

@@ -292,6 +292,11 @@ def test_bad_inputs_are_named():
     for field, value in (("noise", -1.0), ("lapse", 1.0), ("noise_spread", -0.1)):
         with pytest.raises(ValueError, match=f"^Population.{field}: expected"):
             O.Population(**{field: value})
+    # Weights of another length failed at the first judgement, in a matmul.
+    with pytest.raises(ValueError, match=r"^Observer.weights: expected one value per cue"):
+        O.Observer(weights=jnp.ones(2))
+    with pytest.raises(ValueError, match=r"^Population.weight_spread: expected one value per cue"):
+        O.Population(weight_spread=0.1)
     with pytest.raises(ValueError, match="n_observers"):
         O.simulate(jax.random.key(0), A, O.plain_stimuli(A), O.Population(), 0)
     with pytest.raises(ValueError, match="protocol"):

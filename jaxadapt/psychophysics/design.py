@@ -340,6 +340,18 @@ def trial_list(protocol, key):
     return _trial_list(protocol, key)
 
 
+def _responses(trials, responses):
+    """``responses`` as an array, checked to hold one answer per trial on its last axis."""
+    responses = jnp.asarray(responses)
+    n_trials = trials.level.shape[-1]
+    if responses.shape[-1:] != (n_trials,):
+        raise ValueError(
+            f"responses: expected shape (..., {n_trials}), one per trial, got shape "
+            f"{responses.shape}"
+        )
+    return responses
+
+
 def training_accuracy(trials, responses):
     """Fraction of training trials answered correctly.
 
@@ -355,7 +367,7 @@ def training_accuracy(trials, responses):
         Correct means judging the brighter image brighter: ``response == 1``
         exactly when the test is brighter than the standard (``level > 0``).
     """
-    correct = (responses > 0.5) == (trials.level > 0)
+    correct = (_responses(trials, responses) > 0.5) == (trials.level > 0)
     weight = trials.training.astype(jnp.result_type(float))
     return jnp.sum(correct * weight, axis=-1) / jnp.maximum(jnp.sum(weight, axis=-1), 1.0)
 
@@ -400,7 +412,7 @@ def counts(protocol, trials, responses):
     shape = (len(protocol.conditions), len(protocol.tests))
     cell = trials.condition * shape[1] + trials.level_index
     onehot = jax.nn.one_hot(cell, shape[0] * shape[1]) * ~trials.training[..., None]
-    responses = jnp.asarray(responses, dtype=onehot.dtype)
+    responses = _responses(trials, responses).astype(onehot.dtype)
     n_yes = jnp.einsum("...t,...tc->...c", responses, onehot)
     n_total = jnp.broadcast_to(jnp.sum(onehot, axis=-2), n_yes.shape)
     return n_yes.reshape(n_yes.shape[:-1] + shape), n_total.reshape(n_yes.shape[:-1] + shape)

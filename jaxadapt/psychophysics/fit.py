@@ -608,10 +608,24 @@ def _inputs(levels, n_yes, n_total, guess, lapse):
     dtype = jnp.result_type(*(a.dtype for a in arrays), float)
     levels, n_yes, n_total = (jnp.broadcast_to(a.astype(dtype), shape) for a in arrays)
     guess, lapse = (
-        jax.tree.map(lambda r: jnp.broadcast_to(r.astype(dtype), shape[:-1]), _rate(v, name))
-        for v, name in ((guess, "guess"), (lapse, "lapse"))
+        _batch_rate(v, n, shape[:-1], dtype) for v, n in ((guess, "guess"), (lapse, "lapse"))
     )
     return levels, n_yes, n_total, guess, lapse
+
+
+def _batch_rate(value, name, batch, dtype):
+    """:func:`_rate` of ``value`` in ``dtype``, broadcast to the batch shape."""
+    rate = _rate(value, name)
+    try:
+        fits = jnp.broadcast_shapes(rate.low.shape, batch) == batch
+    except ValueError:
+        fits = False
+    if not fits:
+        raise ValueError(
+            f"{name}: expected a rate of the batch shape {batch} or one that "
+            f"broadcasts to it, got shape {rate.low.shape}"
+        )
+    return jax.tree.map(lambda r: jnp.broadcast_to(r.astype(dtype), batch), rate)
 
 
 def _check(levels, n_yes, n_total, guess, lapse):

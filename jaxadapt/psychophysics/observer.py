@@ -110,6 +110,15 @@ def _zeros():
     return jnp.zeros(len(CUES), dtype=jnp.result_type(float))
 
 
+def _check_cue_axis(name, weights):
+    """Raise unless ``weights`` has one entry per cue of :data:`CUES` on its last axis."""
+    if jnp.shape(weights)[-1:] != (len(CUES),):
+        raise ValueError(
+            f"{name}: expected one value per cue {CUES} on the last axis, got shape "
+            f"{jnp.shape(weights)}"
+        )
+
+
 # -- stimuli ------------------------------------------------------------------
 
 
@@ -547,6 +556,9 @@ class Observer(eqx.Module):
     lapse: jax.Array = eqx.field(default=0.0, converter=_array)
     weights: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
 
+    def __check_init__(self):
+        _check_cue_axis("Observer.weights", self.weights)
+
 
 class Population(eqx.Module):
     """Where observers come from: the distribution of :class:`Observer` fields.
@@ -595,6 +607,8 @@ class Population(eqx.Module):
     weight_spread: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
 
     def __check_init__(self):
+        for name in ("weights", "weight_spread"):
+            _check_cue_axis(f"Population.{name}", getattr(self, name))
         check_value("Population.noise", self.noise, lambda v: v > 0, "a positive median noise")
         check_value(
             "Population.lapse", self.lapse, lambda v: (v >= 0) & (v < 1), "a median in [0, 1)"
