@@ -159,7 +159,8 @@ def build_parser():
         type=_positive,
         default=None,
         help="frames per second (default: 30 for FILE sequences, the scene's own for a "
-        "built-in scene: 30, or one frame per 30 ms for title-step)",
+        "built-in scene: 30, or one frame per 30 ms for title-step; the flash scene adds a "
+        "frame where the flash starts or ends between two, so that it lasts exactly 1/8 s)",
     )
     render.add_argument(
         "--multiplier",

@@ -418,10 +418,22 @@ def recorded_gaze(times, points):
     return gaze
 
 
-def _uniform_scene(name, image, duration, fps, gaze, pixels_per_degree, luminance=None):
-    """A scene of one image, optionally scaled over time by ``luminance(t)``."""
-    T = int(round(duration * fps))
-    times = np.arange(T) / fps
+def _frame_times(duration, fps, edges=()):
+    """Frame start times and durations, s: every ``1/fps`` over ``duration``,
+    and a frame boundary at each time of ``edges`` inside it, so that an input
+    that switches there is held for exactly its length (the frame that an edge
+    splits becomes two shorter ones)."""
+    grid = np.arange(int(round(duration * fps))) / fps
+    end = grid[-1] + 1.0 / fps if grid.size else 0.0
+    inside = [e for e in edges if 0.0 < e < end and np.min(np.abs(grid - e)) > 1e-9]
+    times = np.sort(np.concatenate([grid, inside]))
+    return times, np.diff(np.append(times, end))
+
+
+def _uniform_scene(name, image, duration, fps, gaze, pixels_per_degree, luminance=None, edges=()):
+    """A scene of one image, optionally scaled over time by ``luminance(t)``
+    (which may switch at the times ``edges``: :func:`_frame_times`)."""
+    times, dt = _frame_times(duration, fps, edges)
     image = jnp.asarray(image, dtype=jnp.float32)
 
     def render(t):
@@ -429,9 +441,7 @@ def _uniform_scene(name, image, duration, fps, gaze, pixels_per_degree, luminanc
         scale = np.ones(len(t)) if luminance is None else luminance(t)
         return image[None] * jnp.asarray(scale, jnp.float32)[:, None, None, None]
 
-    return Scene(
-        name, times, np.full(T, 1.0 / fps), render, gaze, "foveal", None, pixels_per_degree
-    )
+    return Scene(name, times, dt, render, gaze, "foveal", None, pixels_per_degree)
 
 
 def flash(
@@ -451,7 +461,10 @@ def flash(
     the centre of the frame, where the gaze rests, shown from ``onset`` for
     ``flash_duration`` seconds (1/8 s at 1e7 cd/m2, as in Fig. 4); before and
     after, the screen is black (0 cd/m2), so that the viewer starts
-    dark-adapted and then sees the bleaching afterimage fade.
+    dark-adapted and then sees the bleaching afterimage fade. The flash
+    lasts exactly ``flash_duration`` at any frame rate: where its onset or
+    end falls inside a frame, that frame is split in two (``dt`` then
+    varies; at 30 fps the default flash is 3.75 frames long).
 
     Parameters
     ----------
@@ -464,16 +477,17 @@ def flash(
     luminance : float
         Flash luminance, cd/m2.
     flash_duration, onset : float
-        Flash length and start, s.
+        Flash length and start, s (a flash that outlasts the scene is cut
+        at its end).
     radius_deg : float
         Radius of the flash source, degrees.
     field_deg : float
         Horizontal field of view of the frame, degrees.
     """
-    if flash_duration * fps < 1:
+    if not (0 <= onset < np.inf and 0 < flash_duration < np.inf):
         raise ValueError(
-            f"flash_duration: expected at least one frame (1/fps = {1 / fps:.4g} s), "
-            f"got {flash_duration!r}"
+            f"onset, flash_duration: expected onset >= 0 and a positive length, s, "
+            f"got onset {onset!r}, flash_duration {flash_duration!r}"
         )
     ppd = width / field_deg
     y, x = np.mgrid[:height, :width]
@@ -483,9 +497,9 @@ def flash(
     def on(t):
         return luminance * ((t >= onset - 1e-9) & (t < onset + flash_duration - 1e-9))
 
-    return _uniform_scene(
-        "flash", np.repeat(disk[..., None], 3, -1), duration, fps, fixate(cx, cy), ppd, on
-    )
+    image = np.repeat(disk[..., None], 3, -1)
+    edges = (onset, onset + flash_duration)
+    return _uniform_scene("flash", image, duration, fps, fixate(cx, cy), ppd, on, edges)
 
 
 def _cross(image, cx, cy, arm, value):

@@ -292,6 +292,10 @@ def test_bad_inputs_are_named():
     for field, value in (("noise", -1.0), ("lapse", 1.0), ("noise_spread", -0.1)):
         with pytest.raises(ValueError, match=f"^Population.{field}: expected"):
             O.Population(**{field: value})
+    # A display shows whole frames: 50 ms at 30 fps is 1.5 of them.
+    for fps, lead, match in ((30.0, 0.25, "protocol.presentation_s"), (40.0, 0.26, "lead_s")):
+        with pytest.raises(ValueError, match=f"^{match}: expected a whole number"):
+            O.afterimage_displays(A, key=jax.random.key(0), width=8, height=8, fps=fps, lead_s=lead)
     # Weights of another length failed at the first judgement, in a matmul.
     with pytest.raises(ValueError, match=r"^Observer.weights: expected one value per cue"):
         O.Observer(weights=jnp.ones(2))

@@ -338,7 +338,9 @@ def afterimage_displays(
     width, height : int
         Frame size, pixels (the scene spans 10 degrees).
     fps : float
-        Frame rate, frames per second (at least ``1 / presentation_s``).
+        Frame rate, frames per second: a display shows whole frames, so
+        ``presentation_s`` and ``lead_s`` must each last a whole number of
+        them (the flash at least one).
     lead_s : float
         Darkness before the flash, s.
     flash_luminance : float
@@ -353,6 +355,16 @@ def afterimage_displays(
     del key
     _check_conditions(protocol)
     presentation, blank_s = protocol.presentation_s, protocol.blank_s
+    for name, seconds, least in (
+        ("protocol.presentation_s", presentation, 1),
+        ("lead_s", lead_s, 0),
+    ):
+        n = seconds * fps
+        if abs(n - round(n)) > 1e-6 or round(n) < least:
+            raise ValueError(
+                f"{name}: expected a whole number (>= {least}) of frames at fps = {fps!r}, "
+                f"got {seconds!r} s ({n:.4g} frames)"
+            )
     scene = scenes.flash(
         width,
         height,
@@ -374,7 +386,7 @@ def afterimage_displays(
 
     def render(strength):
         version = dataclasses.replace(params, j1=strength)
-        out, _ = jacobs2015.run(version, frames, 1.0 / fps, gaze=gaze, key=jax.random.key(0))
+        out, _ = jacobs2015.run(version, frames, scene.dt, gaze=gaze, key=jax.random.key(0))
         return _linear(out, version)
 
     weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
