@@ -499,9 +499,9 @@ def _source(args):
     return source
 
 
-def _operator(args, source):
-    """The operator module, its parameters, the plot of its diagnostics and
-    whether its frames come display-encoded."""
+def _operator(args, source, fps):
+    """The operator module, its parameters (for frames at ``fps``), the plot of
+    its diagnostics and whether its frames come display-encoded."""
     from functools import partial
 
     from jaxadapt import figures
@@ -541,7 +541,8 @@ def _operator(args, source):
 
         title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
         plot = partial(figures.plot_columns, title=title)
-        return op, op.Params(pixels_per_degree=ppd), plot, True
+        blur = op.blur_for_display(ppd, fps)
+        return op, op.Params(pixels_per_degree=ppd, afterimage_blur=blur), plot, True
     from jaxadapt.operators import classic
 
     params = classic.Params(
@@ -564,14 +565,14 @@ def render(args, console):
     source = _source(args)
     if args.gaze is not None:
         source = pipeline.with_gaze(source, args.gaze)
-    op, params, plot, encoded = _operator(args, source)
+    fps = 1.0 / float(np.median(source.dt))
+    op, params, plot, encoded = _operator(args, source, fps)
     # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
     encoding = "gamma" if encoded else args.encoding or "srgb"
     encode = (lambda J: J) if encoded else display.ENCODINGS[encoding]
 
     out = args.out
     T = len(source.times)
-    fps = 1.0 / float(np.median(source.dt))
     contact_idx = set(range(min(4, T))) | set(
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )

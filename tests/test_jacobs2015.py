@@ -625,6 +625,22 @@ def test_a_flash_lasts_its_length_at_any_frame_rate(length):
             scenes.flash(width=8, height=8, onset=onset, flash_duration=length)
 
 
+def test_afterimage_maps_spread_the_same_angle_on_any_display():
+    # 1 s of blurs between frames, at 30 and 120 fps, 64 and 128 pixels per
+    # degree: the same spread in degrees (1 pixel a frame at 64 and 30 fps).
+    def spread_deg(ppd, fps):
+        params = op.Params(afterimage_blur=op.blur_for_display(ppd, fps))
+        point = jnp.zeros((160, 160, 3)).at[80, 80].set(1.0)
+        maps = jax.lax.fori_loop(0, int(fps), lambda _, m: op.blur_maps(params, m, m)[0], point)
+        profile = np.asarray(maps[80, :, 0] / maps[80, :, 0].sum())
+        return np.sqrt(np.sum(profile * (np.arange(160) - 80) ** 2)) / ppd
+
+    paper = spread_deg(64.0, 30.0)
+    assert paper == pytest.approx(np.sqrt(30) / 64, rel=0.01)
+    for ppd, fps in ((128.0, 30.0), (128.0, 120.0)):
+        assert spread_deg(ppd, fps) == pytest.approx(paper, rel=0.01)
+
+
 def test_only_switches_on_the_named_effects_and_names_unknown_ones():
     p = op.only("purkinje", "acuity", n=0.8)
     assert [getattr(p, e) for e in op.EFFECTS] == [e in ("purkinje", "acuity") for e in op.EFFECTS]

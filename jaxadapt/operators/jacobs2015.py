@@ -76,6 +76,7 @@ Experience of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §2, §2.4 and
 Appendix A (``shared/seeds/004_*.txt``).
 """
 
+import math
 from typing import NamedTuple
 
 import equinox as eqx
@@ -185,7 +186,8 @@ class Params(eqx.Module):
         frames, pixels (1; 0 for none; §2.4). Static. As in the paper it is
         applied "between each displayed frame", so the spread it causes
         grows with the frame rate: 1 pixel suits 30 frames per second at
-        the paper's 64 pixels per degree (about 0.1 degree after 1 s).
+        the paper's 64 pixels per degree (0.086 degree after 1 s);
+        :func:`blur_for_display` gives the same spread on other displays.
     global_adaptation, bleaching, local_adaptation, purkinje, mesopic_colour,
     acuity, dithering : bool
         Switch each effect on or off. Static. Off, global adaptation stays
@@ -679,7 +681,29 @@ def blur_maps(params, B, C):
     return both[..., :3], both[..., 3:]
 
 
-# -- display ------------------------------------------------------------------
+#: Frame rate at which the default ``afterimage_blur`` (1 pixel a frame, at
+#: the paper's 64 pixels per degree) is meant, frames per second.
+PAPER_FPS = 30.0
+
+
+def blur_for_display(pixels_per_degree, fps, blur=1.0):
+    """The ``afterimage_blur`` (pixels a frame) that spreads the maps on a
+    display of ``pixels_per_degree`` at ``fps`` as ``blur`` pixels a frame
+    do on the paper's display (64 pixels per degree) at 30 fps.
+
+    ``n`` Gaussian blurs of ``sigma`` compose to one of ``sigma sqrt(n)``,
+    so after 1 s the maps have spread by ``sigma sqrt(fps) / ppd`` degrees;
+    holding that angle gives ``sigma = blur (ppd / 64) sqrt(30 / fps)``.
+    (Left at 1 pixel, the maps of the flash scene, 256 pixels over 10
+    degrees at 30 fps, spread 0.21 degree in 1 s, where the paper's spread
+    0.086.)
+
+    Examples
+    --------
+    >>> blur_for_display(64.0, 30.0), round(blur_for_display(25.6, 120.0), 3)
+    (1.0, 0.2)
+    """
+    return float(blur * pixels_per_degree / PAPER_PIXELS_PER_DEGREE * math.sqrt(PAPER_FPS / fps))
 
 
 # -- gaze ---------------------------------------------------------------------

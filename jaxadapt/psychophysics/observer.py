@@ -321,12 +321,14 @@ def afterimage_displays(
     gives one afterimage luminance per condition.
 
     With the defaults, the afterimage at its peak just after the flash
-    measures 5.7e-3 cd/m2 (weak) and 1.9e-2 cd/m2 (strong), and 9.5e-4 and
-    3.2e-3 cd/m2 averaged over the blank; the paper measured 2.2e-2 and
+    measures 5.7e-3 cd/m2 (weak) and 1.9e-2 cd/m2 (strong), and 1.9e-3 and
+    6.2e-3 cd/m2 averaged over the blank; the paper measured 2.2e-2 and
     6.5e-2 cd/m2 on its display (a ratio of 3.0 where ours, linear in
-    ``j1``, is 3.3). The strong version also tints the flash's rim faintly
-    (the blurred retinal maps reach outside the disk during the flash),
-    which the desaturation cue registers as -0.11 (slightly more colourful).
+    ``j1``, is 3.3). The retinal maps are blurred between frames by the
+    angle they spread on the paper's display
+    (:func:`~jaxadapt.operators.jacobs2015.blur_for_display`; at 1 pixel
+    a frame, 2 degrees a second on these 3.2 pixels per degree, the strong
+    afterimage leaked out of the disk during the flash and tinted its rim).
 
     Parameters
     ----------
@@ -380,8 +382,12 @@ def afterimage_displays(
     blank = times >= lead_s + presentation - half
     frames = jnp.asarray(scene.render(times), jnp.float32)
     gaze = jnp.asarray(scene.gaze(times), jnp.float32)
+    ppd = scene.pixels_per_degree
     params = jacobs2015.Params(
-        acuity=False, dithering=False, pixels_per_degree=scene.pixels_per_degree
+        acuity=False,
+        dithering=False,
+        pixels_per_degree=ppd,
+        afterimage_blur=jacobs2015.blur_for_display(ppd, fps),
     )
 
     def render(strength):
