@@ -20,6 +20,23 @@ def _marker(t):
     return "o" if len(t) == 1 else None
 
 
+def curve_frames(diag, count=8):
+    """Indices of up to ``count`` frames at which to draw the scene-to-display
+    curve: evenly spaced along a progress that is half time and half the
+    change of adaptation (the summed ``|Delta log10 A|`` of rods and cones),
+    so that a transient of a fraction of a second in a long sequence (the
+    step on the title page, a tunnel's mouth) gets curves of its own, and a
+    steady sequence gets them evenly in time."""
+    t = np.asarray(diag["t"], float)
+    log_A = [np.log10(np.maximum(np.asarray(diag[k], float), 1e-30)) for k in ("A_rod", "A_cone")]
+    change = np.concatenate([[0.0], np.cumsum(sum(np.abs(np.diff(a)) for a in log_A))])
+    parts = [p / p[-1] for p in (t - t[0], change) if p[-1] > 0]
+    if not parts:  # one frame, or frames at one time without change
+        return np.array([0])
+    progress = sum(parts) / len(parts)
+    return np.unique(np.searchsorted(progress, np.linspace(0.0, 1.0, count) - 1e-12))
+
+
 def plot_adaptation(path, diag, title):
     """Adaptation state over time and the scene-to-display curve at a few times."""
     t = diag["t"]
@@ -37,7 +54,7 @@ def plot_adaptation(path, diag, title):
     ax.set(xlabel="time (s)", ylabel="unbleached fraction", title="pigment B")
     ax.legend()
     ax = axes[2]
-    picks = np.unique(np.linspace(0, len(t) - 1, 8).round().astype(int))
+    picks = curve_frames(diag)
     colors = matplotlib.colormaps["viridis"](np.linspace(0, 1, len(picks)))
     for c, i in zip(colors, picks, strict=True):
         ax.plot(

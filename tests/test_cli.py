@@ -663,3 +663,18 @@ def test_argument_errors_are_one_line(capsys, argv, option):
     with pytest.raises(SystemExit) as exit:
         main(argv)
     _assert_one_line_error(exit.value.code, capsys.readouterr().err, option, "--help")
+
+
+def test_curves_are_drawn_where_adaptation_changes():
+    from jaxadapt import figures
+
+    # The title-page step: A jumps within 0.3 s of a 4 s sequence; frames
+    # evenly spaced in time drew none of the transient (0, 0.57, 1.14 s ...).
+    t = np.arange(134) * 0.03
+    A = np.where(t < 0.03, 0.01, 1000 - 999.99 * np.exp(-(t - 0.03) / 0.08))
+    picks = t[figures.curve_frames({"t": t, "A_rod": A, "A_cone": A})]
+    assert picks[0] == 0 and picks[-1] == t[-1] and np.sum((picks > 0) & (picks < 0.3)) >= 1
+    steady = figures.curve_frames({"t": t, "A_rod": np.ones(134), "A_cone": np.ones(134)})
+    np.testing.assert_array_equal(steady, np.linspace(0, 133, 8).round())
+    one = {"t": t[:1], "A_rod": A[:1], "A_cone": A[:1]}
+    np.testing.assert_array_equal(figures.curve_frames(one), [0])
