@@ -1,11 +1,20 @@
 """The photoreceptor family of tone curves (chapter 6, §6.3) on one HDR interior.
 
-Tone-maps the interior of ``hdr_halos.py`` with every curve of
+Tone-maps :func:`jaxadapt.scenes.interior_with_window` with every curve of
 :data:`jaxadapt.operators.classic.TONE_CURVES` (default parameters), with the
-global background (the log average) and with two local ones (bilateral, and
-the variable-size neighbourhood), and plots the curves themselves against
-log luminance at the scene's log average. Writes ``tone_curves.png``,
-``curves.png`` and ``curves.csv``.
+global background (the log average) and with two local ones of
+``hdr_halos.py`` (Durand and Dorsey's bilateral, and the variable-size
+neighbourhood), and plots the curves themselves against log luminance at the
+scene's log average. Schlick's curve is drawn with the global background
+only: the chapter's form (§6.3) has ``sigma_b = (I_max - I) / p``, "as if
+the value of every pixel served as the background intensity", so it does
+not depend on I_b. (Its background-dependent variant, ``k > 0`` in
+:class:`~jaxadapt.operators.classic.Schlick1994`, is Schlick's non-uniform
+quantisation, which the chapter does not give.) Writes ``tone_curves.png``,
+``curves.png`` and ``curves.csv``; the curves, in both, are display values
+clipped to [0, 1], as :func:`~jaxadapt.operators.classic.tone_map` shows
+them (Ward's JND mapping, unclipped, reaches 215 times display white at the
+scene's 2e4 cd/m2 in a full run, ``python hdr_tone_curves.py``).
 """
 
 import csv
@@ -13,12 +22,16 @@ import csv
 import jax.numpy as jnp
 import numpy as np
 from common import setup
-from hdr_halos import interior_with_window
+from hdr_halos import estimators
 from matplotlib.figure import Figure
 
-from jaxadapt.color import W_PHOTOPIC
+from jaxadapt.color import photopic_luminance
 from jaxadapt.display import encode_srgb
 from jaxadapt.operators import classic, goal
+from jaxadapt.scenes import interior_with_window
+
+#: Curves that do not depend on the background: drawn with the global one only.
+WITHOUT_BACKGROUND = ("schlick1994",)
 
 
 def main():
@@ -26,11 +39,12 @@ def main():
     scale = 0.25 if args.smoke else 1.0
     rgb, _ = interior_with_window(int(480 * scale), int(320 * scale))
     rgb = jnp.asarray(rgb)
-    L = rgb @ jnp.asarray(W_PHOTOPIC, dtype=rgb.dtype)
+    L = photopic_luminance(rgb)
+    local = estimators(scale)
     backgrounds = {
         "global": None,
-        "bilateral": goal.bilateral_background(L, scale=max(1.0, 8.0 * scale)),
-        "adaptive": goal.adaptive_background(L),
+        "bilateral": local["bilateral (Durand-Dorsey)"](L),
+        "adaptive": local["adaptive"](L),
     }
     curves = {name: make() for name, make in classic.TONE_CURVES.items()}
 
@@ -38,10 +52,13 @@ def main():
     axes = fig.subplots(len(backgrounds), len(curves))
     for row, (where, background) in zip(axes, backgrounds.items(), strict=True):
         for ax, (name, params) in zip(row, curves.items(), strict=True):
+            ax.set_axis_off()
+            if background is not None and name in WITHOUT_BACKGROUND:
+                ax.text(0.5, 0.5, f"{name}: no $I_b$\n(as with the global one)", ha="center")
+                continue
             shown = classic.tone_map(params, rgb, background)
             ax.imshow(np.asarray(encode_srgb(shown)), interpolation="nearest")
             ax.set_title(f"{name}, $I_b$ {where}", fontsize=9)
-            ax.set_axis_off()
     fig.suptitle("The Eq 6.2 family of tone curves with a global and two local backgrounds")
     fig.tight_layout()
     fig.savefig(out / "tone_curves.png", dpi=90)
@@ -50,15 +67,18 @@ def main():
     I_b = float(goal.log_average(L))
     log_I = np.linspace(-1.0, np.log10(float(L.max())), 31 if args.smoke else 301)
     I = jnp.asarray(10.0**log_I)[None, :]  # one row: Schlick takes I_max from it
-    values = {name: np.asarray(p.curve(I, jnp.full_like(I, I_b)))[0] for name, p in curves.items()}
+    values = {
+        name: np.clip(np.asarray(p.curve(I, jnp.full_like(I, I_b)))[0], 0.0, 1.0)
+        for name, p in curves.items()
+    }
     fig = Figure(figsize=(8, 4.5))
     ax = fig.subplots()
     for name, v in values.items():
-        ax.plot(log_I, np.clip(v, 0, 1), label=name)
+        ax.plot(log_I, v, label=name)
     ax.axvline(np.log10(I_b), color="grey", lw=0.5)
     ax.set(
         xlabel="log$_{10}$ luminance (cd/m$^2$)",
-        ylabel="display value (linear)",
+        ylabel="display value (linear, clipped to [0, 1])",
         title=f"tone curves at $I_b$ = {I_b:.1f} cd/m$^2$ (the scene's log average)",
     )
     ax.legend()

@@ -12,8 +12,15 @@ import jax.numpy as jnp
 import numpy as np
 from common import setup
 from matplotlib.figure import Figure
+from scipy.optimize import brentq
 
 from jaxadapt.physiology.threshold import tvi_cone, tvi_rod, tvi_rod_cone
+
+
+def rod_cone_crossing(lo=1e-4, hi=1e6):
+    """The background (td) at which the rod and cone thresholds are equal,
+    found by a root solve between ``lo`` and ``hi`` td (1.98 td)."""
+    return brentq(lambda I: float(tvi_rod(I) - tvi_cone(I)), lo, hi, xtol=1e-12)
 
 
 def main():
@@ -27,7 +34,7 @@ def main():
         dI = np.asarray(dI)
         ax.plot(log_I, np.log10(dI), style, lw=2 if name != "envelope" else 1, label=name)
         weber.plot(log_I, np.log10(dI / 10.0**log_I), style, label=name)
-    crossing = 0.1585 / 0.08
+    crossing = rod_cone_crossing()
     ax.axvline(np.log10(crossing), color="grey", lw=0.5)
     ax.set(
         xlabel="log$_{10}$ background $I_b$ (td)",

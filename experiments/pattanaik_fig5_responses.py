@@ -2,8 +2,13 @@
 
 For each adaptation luminance A (statically adapted: sigma from Eqs 4-5, B
 from Eq 6) the response R = B L^n / (L^n + sigma^n) of Eq 2 is drawn against
-log10 L, with the response to A itself (circle) and to reference white 5 A
-(square) marked. Writes ``fig5_responses.png`` and ``fig5_responses.csv``.
+log10 L, with, as in the paper's caption, a cross at the response to A
+itself and a circle at the response to reference white, 5 A (§4.1.2,
+Hunt's suggestion). The caption's levels read, in the extracted text,
+"A_cone = A_rod = 2 10^5, 2 10^4, ..., 2 10^6, 2 10^7 cd/m2": a list that
+falls and then rises, so the extraction lost the minus signs of its first
+exponents; we read 2 10^k cd/m2 for k = -5 to 7, the same 13 levels for
+rods and cones. Writes ``fig5_responses.png`` and ``fig5_responses.csv``.
 """
 
 import csv
@@ -22,10 +27,10 @@ from jaxadapt.physiology.response import (
     sigma_rod,
 )
 
-RECEPTORS = {
-    "rods": (sigma_rod, bleach_rod, np.arange(-6, 3)),
-    "cones": (sigma_cone, bleach_cone, np.arange(-2, 9)),
-}
+RECEPTORS = {"rods": (sigma_rod, bleach_rod), "cones": (sigma_cone, bleach_cone)}
+
+#: Adaptation levels of the caption, cd/m2: 2 10^k for k = -5 to 7.
+LEVELS = np.array([2.0 * 10.0**k for k in range(-5, 8)])
 
 
 def main():
@@ -33,23 +38,22 @@ def main():
     log_L = np.linspace(-8, 10, 91 if args.smoke else 721)
     fig = Figure(figsize=(12, 4.5))
     rows = []
-    for ax, (name, (sigma_of, bleach_of, decades)) in zip(
+    colours = matplotlib.colormaps["viridis"](np.linspace(0, 0.95, len(LEVELS)))
+    for ax, (name, (sigma_of, bleach_of)) in zip(
         fig.subplots(1, 2), RECEPTORS.items(), strict=True
     ):
-        colours = matplotlib.colormaps["viridis"](np.linspace(0, 0.95, len(decades)))
-        for d, colour in zip(decades, colours, strict=True):
-            A = 10.0 ** float(d)
+        for A, colour in zip(LEVELS, colours, strict=True):
             sigma, B = sigma_of(jnp.asarray(A)), bleach_of(jnp.asarray(A))
             R = np.asarray(naka_rushton(10.0 ** jnp.asarray(log_L), sigma, B))
-            ax.plot(log_L, R, lw=1.2, color=colour, label=f"A = 1e{d}")
-            for L, marker in ((A, "o"), (5 * A, "s")):
+            ax.plot(log_L, R, lw=1.2, color=colour, label=f"A = {A:.0e}")
+            for L, marker in ((A, "x"), (5 * A, "o")):
                 ax.plot(np.log10(L), float(naka_rushton(L, sigma, B)), marker, color=colour)
             rows.append((name, A, float(sigma), float(B), float(naka_rushton(5 * A, sigma, B))))
         ax.set(xlabel="log$_{10}$ luminance (cd/m$^2$)", ylabel="response R", title=name)
         ax.legend(fontsize=7, ncol=2)
     fig.suptitle(
-        "Pattanaik et al. 2000, Fig. 5: responses at adaptation levels a decade apart "
-        "(o: R(A), s: R(5A), reference white)"
+        "Pattanaik et al. 2000, Fig. 5: responses at adaptation levels A a decade apart "
+        "(x: response to A, o: to reference white, 5 A)"
     )
     fig.tight_layout()
     fig.savefig(out / "fig5_responses.png", dpi=110)

@@ -8,6 +8,10 @@ long sequences are made chunk by chunk and never held whole in memory.
   suddenly lit to a 1000 cd/m2 goal, frames 30 ms apart.
 * :func:`tunnel_drive`: a drive through a highway tunnel on a sunny day
   (road about 5000 cd/m2 outside, 5 cd/m2 inside), 30 fps, 20 s (§5, Fig. 7).
+
+:func:`interior_with_window` is a still HDR image (a room at 1.7-52 cd/m2
+with a window onto a street at up to 2e4 cd/m2) for the chapter's local
+backgrounds and their halos (§6.4).
 """
 
 from collections.abc import Callable
@@ -271,6 +275,82 @@ def tunnel_drive(
 
 
 SCENES = {"tunnel": tunnel_drive, "title-step": title_step}
+
+
+# -- an HDR interior (the chapter's local backgrounds, §6.4) ------------------
+
+#: Labels of :func:`interior_with_window`'s regions.
+ROOM, OUTSIDE, FRAME = 0, 1, 2
+
+
+def interior_with_window(width=480, height=320):
+    """A room with a window onto a sunlit street: a still HDR image, linear BT.709 RGB in cd/m2.
+
+    The room is lit from the right, where the window is: the illumination,
+    the luminance of a perfect white diffuser, rises from 30 cd/m2 at the
+    left wall to 80 cd/m2 at the right one. It holds a wall of reflectance
+    0.6 with 10 % stripes (17-52 cd/m2), a floor of reflectance 0.25 with
+    15 % stripes (6.4-23 cd/m2), a dark cabinet (reflectance 0.05, 1.7-2.2
+    cd/m2) and a picture (7-37 cd/m2): 1.5 log units in all, in a warm
+    tint. Through the window: a sky of 4800-5500 cd/m2, brighter towards
+    the top, and a brick facade, shaded at 1200-1500 cd/m2 on the left and
+    sunlit at 1.6e4-2e4 cd/m2 on the right, behind a dark frame and
+    mullions of 15 cd/m2. Every size is a fraction of the image's, so the
+    scene is the same at any resolution.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size, pixels.
+
+    Returns
+    -------
+    rgb : numpy array, float32, shape (height, width, 3)
+        Linear BT.709 RGB, cd/m2 (photopic luminance as above).
+    labels : numpy array, int, shape (height, width)
+        :data:`ROOM` (0), :data:`OUTSIDE` (1: sky and facade) or
+        :data:`FRAME` (2: the window's frame and mullions).
+    """
+    fy, fx = np.mgrid[0:height, 0:width] / np.array([height, width])[:, None, None]
+    # the room: illumination from the window times reflectance
+    light = 30.0 + 50.0 * fx
+    reflectance = 0.6 * (1.0 + 0.1 * np.sin(2 * np.pi * 40 * fx))
+    floor = fy > 0.75
+    reflectance = np.where(floor, 0.25 * (1.0 + 0.15 * np.sin(2 * np.pi * 12 * fy)), reflectance)
+    cabinet = (fx > 0.06) & (fx < 0.3) & (fy > 0.45) & (fy < 0.85)
+    reflectance = np.where(cabinet, 0.05, reflectance)
+    picture = (fx > 0.12) & (fx < 0.36) & (fy > 0.15) & (fy < 0.35)
+    reflectance = np.where(
+        picture, 0.2 + 0.6 * (np.sin(30 * fx) * np.sin(25 * fy)) ** 2, reflectance
+    )
+    rgb = _surface_rgb((light * reflectance)[..., None], (1.0, 0.9, 0.75))
+    labels = np.full((height, width), ROOM)
+    # the window: sky above, a sunlit facade with a shaded part below
+    window = (fx > 0.5) & (fx < 0.88) & (fy > 0.12) & (fy < 0.62)
+    sky = window & (fy < 0.3)
+    bricks = 0.8 + 0.2 * (
+        (np.floor(fy * 60) + np.floor(fx * 25 + 0.5 * (np.floor(fy * 60) % 2))) % 2
+    )
+    facade = np.where(fx < 0.6, 1500.0, 2.0e4) * bricks
+    rgb = np.where(
+        sky[..., None], _surface_rgb((6000.0 - 4000.0 * fy)[..., None], (0.7, 0.85, 1.2)), rgb
+    )
+    rgb = np.where(
+        (window & ~sky)[..., None], _surface_rgb(facade[..., None], (1.1, 0.95, 0.8)), rgb
+    )
+    labels = np.where(window, OUTSIDE, labels)
+    # the window frame and mullions, dark against the light
+    frame = window & (
+        (np.abs(fx - 0.69) < 0.006)
+        | (np.abs(fy - 0.36) < 0.008)
+        | (fx < 0.508)
+        | (fx > 0.872)
+        | (fy < 0.132)
+        | (fy > 0.608)
+    )
+    rgb = np.where(frame[..., None], _surface_rgb(15.0, (1.0, 0.95, 0.9)), rgb)
+    labels = np.where(frame, FRAME, labels)
+    return rgb.astype(np.float32), labels
 
 
 # -- stimuli of Jacobs et al. (2015) ------------------------------------------
