@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from common import setup
-from jacobs_common import linear
+from jacobs_common import linear, scaled_to_mean
 from matplotlib.figure import Figure
 
 from jaxadapt import scenes
@@ -41,13 +41,13 @@ def main():
         image, inset = chart(width, height, white)
         frames = jnp.asarray(image, jnp.float32)[None]
         display, _ = op.run(params, frames, 1 / 30, key=jax.random.key(1))
-        renders.append(linear(display[0], params))
+        renders.append(display[0])
         insets.append(inset)
-    target = renders[0].mean()
+    target = linear(renders[0], params).mean()
     fig = Figure(figsize=(2.6 * len(WHITES), 4.4))
     axes = fig.subplots(2, len(WHITES), squeeze=False, height_ratios=(2, 1.3))
-    for k, (white, lin, inset) in enumerate(zip(WHITES, renders, insets, strict=True)):
-        shown = np.clip(lin * target / lin.mean(), 0, 1) ** float(params.gamma)
+    for k, (white, render, inset) in enumerate(zip(WHITES, renders, insets, strict=True)):
+        shown = scaled_to_mean(render, params, target)
         axes[0, k].imshow(shown, interpolation="nearest")
         axes[0, k].set_title(f"white {white:g} cd/m$^2$", fontsize=9)
         axes[1, k].imshow(shown[inset].repeat(4, 0).repeat(4, 1), interpolation="nearest")

@@ -10,7 +10,7 @@ maps are not blurred between frames (§2.4), as in the paper's figure. Writes
 
 import numpy as np
 from common import setup
-from jacobs_common import linear, run_scene
+from jacobs_common import run_scene, scaled_to_max
 from matplotlib.figure import Figure
 
 from jaxadapt import scenes
@@ -39,9 +39,7 @@ def main():
         after_flash = scene.times >= onset + length - 1e-9
         rows.append(display[after_flash, 8, 8])
     shown = np.stack(rows)
-    hue = linear(shown, params)
-    hue = hue / np.maximum(hue.max(-1, keepdims=True), 1e-12)
-    hue = hue ** float(params.gamma)
+    hue = scaled_to_max(shown, params, axis=-1)
     fig = Figure(figsize=(9, 6))
     axes = fig.subplots(2, 1)
     extent = (0, after, len(LOG_LUMINANCES) - 0.5, -0.5)
