@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 from common import setup
-from jacobs_common import linear, run_scene
+from jacobs_common import encode, linear, run_scene
 from matplotlib.figure import Figure
 
 from jaxadapt import scenes
@@ -22,7 +22,7 @@ from jaxadapt.operators import jacobs2015 as op
 def stretch(display, params, gain=10.0):
     """Contrast of a display region stretched ``gain`` times about its mean."""
     lin = linear(display, params)
-    return np.clip(lin.mean() + gain * (lin - lin.mean()), 0, 1) ** float(params.gamma)
+    return encode(lin.mean() + gain * (lin - lin.mean()), params)
 
 
 def main():
