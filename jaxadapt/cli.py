@@ -160,7 +160,8 @@ def build_parser():
         default=None,
         help="frames per second (default: 30 for FILE sequences, the scene's own for a "
         "built-in scene: 30, or one frame per 30 ms for title-step; the flash scene adds a "
-        "frame where the flash starts or ends between two, so that it lasts exactly 1/8 s)",
+        "frame where the flash starts or ends between two, so that the simulation holds it for "
+        "exactly 1/8 s: the outputs show these frames too, at the same rate)",
     )
     render.add_argument(
         "--multiplier",
@@ -565,7 +566,8 @@ def render(args, console):
     source = _source(args)
     if args.gaze is not None:
         source = pipeline.with_gaze(source, args.gaze)
-    fps = 1.0 / float(np.median(source.dt))
+    # The nominal rate: frames split at a flash's edges are shorter, none longer.
+    fps = 1.0 / float(np.max(source.dt))
     op, params, plot, encoded = _operator(args, source, fps)
     # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
     encoding = "gamma" if encoded else args.encoding or "srgb"

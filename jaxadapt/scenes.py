@@ -503,11 +503,12 @@ def _frame_times(duration, fps, edges=()):
     and a frame boundary at each time of ``edges`` inside it, so that an input
     that switches there is held for exactly its length (the frame that an edge
     splits becomes two shorter ones)."""
-    grid = np.arange(int(round(duration * fps))) / fps
-    end = grid[-1] + 1.0 / fps if grid.size else 0.0
-    inside = [e for e in edges if 0.0 < e < end and np.min(np.abs(grid - e)) > 1e-9]
+    T = int(round(duration * fps))
+    grid = np.arange(T) / fps
+    bounds = np.append(grid, T / fps)
+    inside = [e for e in edges if 0.0 < e < bounds[-1] and np.min(np.abs(bounds - e)) > 1e-9]
     times = np.sort(np.concatenate([grid, inside]))
-    return times, np.diff(np.append(times, end))
+    return times, np.diff(np.append(times, bounds[-1]))
 
 
 def _uniform_scene(name, image, duration, fps, gaze, pixels_per_degree, luminance=None, edges=()):
@@ -564,10 +565,10 @@ def flash(
     field_deg : float
         Horizontal field of view of the frame, degrees.
     """
-    if not (0 <= onset < np.inf and 0 < flash_duration < np.inf):
+    if not (0 <= onset < duration and 1e-6 <= flash_duration < np.inf):
         raise ValueError(
-            f"onset, flash_duration: expected onset >= 0 and a positive length, s, "
-            f"got onset {onset!r}, flash_duration {flash_duration!r}"
+            f"onset, flash_duration: expected onset in [0, {duration!r}) s and a length of at "
+            f"least 1e-6 s, got onset {onset!r}, flash_duration {flash_duration!r}"
         )
     ppd = width / field_deg
     y, x = np.mgrid[:height, :width]

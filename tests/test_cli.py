@@ -285,11 +285,14 @@ def test_options_that_would_be_ignored_are_refused(tmp_path, capsys, args, optio
 def test_fps_sets_the_frame_rate_of_a_builtin_scene(tmp_path, capsys):
     out = tmp_path / "out"
     args = ["render", "--scene", "flash", "--size", "16x16", "--duration", "0.5", "--fps", "10"]
-    assert _run(capsys, *args, "--format", "exr", "--out", str(out))[0] == 0
+    assert _run(capsys, *args, "--format", "exr", "--format", "mp4", "--out", str(out))[0] == 0
     rows = list(csv.DictReader(open(out / "diagnostics.csv")))
-    # and the flash (0.25 to 0.375 s) begins and ends on frames of its own.
+    # and the flash (0.25 to 0.375 s) begins and ends on frames of its own,
     times = [0.0, 0.1, 0.2, 0.25, 0.3, 0.375, 0.4]
     assert [float(r["t"]) for r in rows] == pytest.approx(times)
+    # which the video shows at the rate asked for (the median frame, 75 ms, made it 13.3 fps).
+    frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(out / "video.mp4"))
+    assert frames == 7 and seconds == pytest.approx(0.7, abs=0.01)
 
 
 def test_gaze_and_trial_files_that_are_not_text_are_named(tmp_path, capsys):

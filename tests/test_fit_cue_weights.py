@@ -36,7 +36,7 @@ def synthetic(protocol, cues):
 
 #: The afterimage tests carry a faint colour difference too, so that the
 #: mesopic scale moves both protocols: the joint fit must handle coupled
-#: protocols (the real renders are not coupled).
+#: protocols (the real renders are coupled faintly, by -0.010).
 STIMULI = {
     "afterimage": synthetic(design.AFTERIMAGE, [0.47, -0.11, 0.0]),
     "mesopic": synthetic(design.MESOPIC, [0.0, 1.0, 0.55]),

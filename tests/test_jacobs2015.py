@@ -620,14 +620,21 @@ def test_a_flash_lasts_its_length_at_any_frame_rate(length):
         after[fps] = np.asarray(diag.B_gaze)[np.argmin(np.abs(scene.times - 0.4))]
     assert after[30.0][2] > 1e-3
     np.testing.assert_allclose(after[30.0], after[120.0], rtol=1e-9)
-    for onset, length in ((-0.1, 0.125), (0.25, 0.0), (0.25, np.nan)):
-        with pytest.raises(ValueError, match="onset, flash_duration: expected onset >= 0"):
-            scenes.flash(width=8, height=8, onset=onset, flash_duration=length)
+    for onset, length in ((-0.1, 0.125), (4.0, 0.125), (0.25, 1e-10), (0.25, np.nan)):
+        with pytest.raises(
+            ValueError, match=r"onset, flash_duration: expected onset in \[0, 4.0\)"
+        ):
+            scenes.flash(width=8, height=8, duration=4.0, onset=onset, flash_duration=length)
+    # A flash ending with the scene left a last frame of 5.6e-17 s.
+    scene = scenes.flash(width=8, height=8, duration=0.3, fps=50, onset=0.05, flash_duration=0.25)
+    assert len(scene.times) == 16 and scene.dt[-1] == pytest.approx(0.02)
 
 
 def test_afterimage_maps_spread_the_same_angle_on_any_display():
-    # 1 s of blurs between frames, at 30 and 120 fps, 64 and 128 pixels per
+    # 1 s of blurs between frames, at 30 and 120 fps, 25.6 to 128 pixels per
     # degree: the same spread in degrees (1 pixel a frame at 64 and 30 fps).
+    # The sub-pixel blurs (0.4 and 0.2 pixels at 25.6) of a sampled Gaussian
+    # spread 29 % and 99 % less.
     def spread_deg(ppd, fps):
         params = op.Params(afterimage_blur=op.blur_for_display(ppd, fps))
         point = jnp.zeros((160, 160, 3)).at[80, 80].set(1.0)
@@ -637,7 +644,7 @@ def test_afterimage_maps_spread_the_same_angle_on_any_display():
 
     paper = spread_deg(64.0, 30.0)
     assert paper == pytest.approx(np.sqrt(30) / 64, rel=0.01)
-    for ppd, fps in ((128.0, 30.0), (128.0, 120.0)):
+    for ppd, fps in ((128.0, 30.0), (128.0, 120.0), (25.6, 30.0), (25.6, 120.0)):
         assert spread_deg(ppd, fps) == pytest.approx(paper, rel=0.01)
 
 

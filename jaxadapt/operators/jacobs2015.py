@@ -96,7 +96,12 @@ from jaxadapt.operators.checks import (
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_log_average, frame_centre
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
-from jaxadapt.spatial import check_value, gaussian_blur
+from jaxadapt.spatial import (
+    check_value,
+    discrete_gaussian_kernel,
+    gaussian_blur,
+    separable_filter,
+)
 
 #: Appendix A: LMS bleaching deviations to RGB afterimage colour.
 H_AFTERIMAGE = np.array([[1.14, -1.18, 0.36], [-0.08, 1.02, 0.18], [0.30, -0.11, 1.25]])
@@ -673,11 +678,15 @@ def retinal_shift(maps, shift, fill):
 
 
 def blur_maps(params, B, C):
-    """Blur the bleaching and calcium maps between frames (§2.4), in one pass."""
+    """Blur the bleaching and calcium maps between frames (§2.4), in one pass,
+    by a discrete Gaussian of ``afterimage_blur`` pixels (exactly that
+    variance at any width, so that :func:`blur_for_display` holds for the
+    sub-pixel blurs of coarse displays)."""
     if params.afterimage_blur == 0:
         return B, C
     both = jnp.moveaxis(jnp.concatenate([B, C], axis=-1), -1, 0)
-    both = jnp.moveaxis(gaussian_blur(both, params.afterimage_blur), 0, -1)
+    both = separable_filter(both, discrete_gaussian_kernel(params.afterimage_blur))
+    both = jnp.moveaxis(both, 0, -1)
     return both[..., :3], both[..., 3:]
 
 

@@ -289,6 +289,19 @@ def _linear(display, params):
     return display ** (1.0 / params.gamma)
 
 
+def _whole_frames(name, seconds, fps, least):
+    """``seconds`` as a whole number (at least ``least``) of frames at ``fps``,
+    ``n / fps`` exactly, so that the flash's edges fall on frame starts; a
+    ValueError naming ``name`` when it is not within 1e-6 of a frame."""
+    n = seconds * fps
+    if abs(n - round(n)) > 1e-6 or round(n) < least:
+        raise ValueError(
+            f"{name}: expected a whole number (>= {least}) of frames at fps = {fps!r}, "
+            f"got {seconds!r} s ({n:.4g} frames)"
+        )
+    return round(n) / fps
+
+
 def afterimage_displays(
     protocol,
     *,
@@ -326,9 +339,11 @@ def afterimage_displays(
     6.5e-2 cd/m2 on its display (a ratio of 3.0 where ours, linear in
     ``j1``, is 3.3). The retinal maps are blurred between frames by the
     angle they spread on the paper's display
-    (:func:`~jaxadapt.operators.jacobs2015.blur_for_display`; at 1 pixel
-    a frame, 2 degrees a second on these 3.2 pixels per degree, the strong
-    afterimage leaked out of the disk during the flash and tinted its rim).
+    (:func:`~jaxadapt.operators.jacobs2015.blur_for_display`: 0.27 pixel
+    in a second at these 3.2 pixels per degree), so the strong
+    afterimage's maps reach a little beyond the disk during the flash,
+    which the desaturation cue registers as -0.010 (slightly more
+    colourful; at 1 pixel a frame, 2 degrees a second, it was -0.11).
 
     Parameters
     ----------
@@ -356,17 +371,9 @@ def afterimage_displays(
     """
     del key
     _check_conditions(protocol)
-    presentation, blank_s = protocol.presentation_s, protocol.blank_s
-    for name, seconds, least in (
-        ("protocol.presentation_s", presentation, 1),
-        ("lead_s", lead_s, 0),
-    ):
-        n = seconds * fps
-        if abs(n - round(n)) > 1e-6 or round(n) < least:
-            raise ValueError(
-                f"{name}: expected a whole number (>= {least}) of frames at fps = {fps!r}, "
-                f"got {seconds!r} s ({n:.4g} frames)"
-            )
+    presentation = _whole_frames("protocol.presentation_s", protocol.presentation_s, fps, 1)
+    lead_s = _whole_frames("lead_s", lead_s, fps, 0)
+    blank_s = protocol.blank_s
     scene = scenes.flash(
         width,
         height,
