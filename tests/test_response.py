@@ -88,6 +88,18 @@ def test_slope_is_the_derivative_per_log10_unit():
         )
 
 
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_semi_saturation_in_the_dark_is_its_limit(dtype):
+    # 5A / F(A) is 0/0 at A = 0 (NaN before): the dark value is the limit,
+    # 2^(1/n) / 0.2 for cones and 2^(1/n) / 3800 for rods.
+    A = jnp.array([0.0, 1e-15], dtype)
+    for f, dark in ((r.sigma_cone, 12.9223), (r.sigma_rod, 12.9223 / 19000)):
+        sigma = f(A)
+        assert sigma.dtype == dtype
+        np.testing.assert_allclose(sigma, dark, rtol=1e-4)
+        assert jnp.isfinite(jax.grad(lambda a, f=f: f(a))(jnp.asarray(0.0, dtype)))
+
+
 def test_extremes_are_finite_in_float32():
     L = jnp.array([0.0, 1e-6, 1.0, 1e8], dtype=jnp.float32)
     A = jnp.array([1e-6, 1e-2, 1e4, 1e8], dtype=jnp.float32)

@@ -262,6 +262,20 @@ def hunt_F_LS(A):
     return 3800.0 * j2 * (5.0 * A) + 0.2 * (1.0 - j2) ** 4 * power(5.0 * A, 1.0 / 6.0)
 
 
+def _semi_saturation(F, A, n, dark_gain):
+    """``2^(1/n) 5A / F(A)`` (Eqs 4-5) for a Hunt factor ``F`` with
+    ``F(A) -> dark_gain 5A`` as ``A -> 0``, and that limit,
+    ``2^(1/n) / dark_gain``, at ``A = 0`` itself, where the quotient is 0/0.
+
+    Darkness is a state the eye adapts to, and Hunt's factors are linear
+    in ``A`` near it (``k, j -> 1``), so the semi-saturation has a finite
+    dark value. Its gradient at ``A = 0`` is taken as 0.
+    """
+    dark = A == 0
+    safe = jnp.where(dark, 1.0, A)
+    return 2.0 ** (1.0 / n) * jnp.where(dark, 1.0 / dark_gain, 5.0 * safe / F(safe))
+
+
 def sigma_cone(A, n=N_HUNT):
     """Cone semi-saturation luminance for adaptation ``A`` (Eq 5).
 
@@ -274,14 +288,15 @@ def sigma_cone(A, n=N_HUNT):
     Parameters
     ----------
     A : array
-        Cone adaptation luminance, cd/m2, ``> 0``.
+        Cone adaptation luminance, cd/m2, ``>= 0``.
 
     Returns
     -------
     array
-        Semi-saturation luminance, cd/m2.
+        Semi-saturation luminance, cd/m2; at ``A = 0`` its dark limit
+        ``2^(1/n) / 0.2 = 12.92`` cd/m2 (:func:`_semi_saturation`).
     """
-    return 2.0 ** (1.0 / n) * 5.0 * A / hunt_F_L(A)
+    return _semi_saturation(hunt_F_L, A, n, dark_gain=0.2)
 
 
 def sigma_rod(A, n=N_HUNT):
@@ -302,14 +317,15 @@ def sigma_rod(A, n=N_HUNT):
     Parameters
     ----------
     A : array
-        Rod adaptation luminance, scotopic cd/m2, ``> 0``.
+        Rod adaptation luminance, scotopic cd/m2, ``>= 0``.
 
     Returns
     -------
     array
-        Semi-saturation luminance, scotopic cd/m2.
+        Semi-saturation luminance, scotopic cd/m2; at ``A = 0`` its dark
+        limit ``2^(1/n) / 3800 = 6.8e-4`` cd/m2 (:func:`_semi_saturation`).
     """
-    return 2.0 ** (1.0 / n) * 5.0 * A / hunt_F_LS(A)
+    return _semi_saturation(hunt_F_LS, A, n, dark_gain=3800.0)
 
 
 def bleach_cone(A):
