@@ -434,6 +434,14 @@ def test_a_parameter_out_of_its_range_is_named(field, value):
     np.testing.assert_allclose(t0, [-1.0, 0.1])
 
 
+@pytest.mark.parametrize("ratio", [1.0, 0.5])
+def test_reference_black_must_lie_below_white(ratio):
+    # At black_ratio = 1 the display's colour exponent S_d was 0/0 and every
+    # pixel NaN; at 0.5 the tone curve was a step from 0 to 1.
+    with pytest.raises(ValueError, match="black_ratio: expected a number above 1"):
+        op.Params(black_ratio=ratio)
+
+
 def test_unknown_background_and_bad_scale_are_named():
     with pytest.raises(ValueError, match="background: expected one of"):
         op.Params(background="median")

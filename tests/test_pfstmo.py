@@ -12,7 +12,6 @@ import pytest
 
 from jaxadapt import peers, scenes
 from jaxadapt.operators import pattanaik2000 as op
-from jaxadapt.physiology import response
 
 pytestmark = pytest.mark.skipif(
     not peers.pfstmo_available(),
@@ -33,17 +32,23 @@ def _ours_static(A):
     return np.asarray(op.tone_map(P, op.observer(P, state), jnp.asarray(_ramp_image(A)[0])))[:, 1]
 
 
-@pytest.mark.parametrize("A", [0.01, 1.0, 25.0, 1000.0])
-def test_static_tone_curve_agrees_with_pfstmo_given_eq4_as_printed(monkeypatch, A):
-    # pfstmo follows Eq 4 as printed (numerator 2.5874 A); we follow the
-    # paper's display table (12.9223 A, see response.sigma_rod). With the
-    # printed form substituted, the rest of the pipeline (goals held, Hunt's
-    # sigma and B, references, the rules of §4.3, the display inverse) agrees:
-    # to 3 %, and near display black to 2e-4 of white (a twentieth of an
-    # 8-bit step; pfstmo lands a little lower there in the scotopic range).
+def _pfstmo_sigma_rod(A, n):
+    """pfstmo's Eq 4: the printed numerator ``2.5874 A`` and ``j = 1/(5e4 A + 1)``
+    (ours: ``12.9223 A`` and ``5e5``, see ``response.sigma_rod``, ``hunt_F_LS``)."""
+    j2 = (1.0 / (5e4 * A + 1.0)) ** 2
+    return 2.5874 * A / (19000.0 * j2 * A + 0.2615 * (1.0 - j2) ** 4 * A ** (1.0 / 6.0))
+
+
+@pytest.mark.parametrize("A", [1e-3, 0.01, 0.1, 1.0, 25.0, 1000.0])
+def test_static_tone_curve_agrees_with_pfstmo_given_its_eq4(monkeypatch, A):
+    # pfstmo follows Eq 4 as printed, with 5e4 in j; we follow the paper's
+    # display table and its printed j (see response.sigma_rod). With pfstmo's
+    # form substituted, the rest of the pipeline (goals held, Hunt's sigma
+    # and B, references, the rules of §4.3, the display inverse) agrees, from
+    # mesopic to photopic: to 3 %, and near display black to 2e-4 of white
+    # (a twentieth of an 8-bit step; pfstmo lands a little lower there).
     (theirs,), _ = peers.pfstmo_pattanaik00([_ramp_image(A)], "--cone", str(A), "--rod", str(A))
-    printed = response.sigma_rod
-    monkeypatch.setattr(op, "sigma_rod", lambda A, n: printed(A, n) / 5.0)
+    monkeypatch.setattr(op, "sigma_rod", _pfstmo_sigma_rod)
     ours = _ours_static(A)
     shown = (theirs[0, :, 1] > 1e-3) & (theirs[0, :, 1] < 0.999)
     assert shown.sum() > 10

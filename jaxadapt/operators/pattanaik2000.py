@@ -91,7 +91,9 @@ class Params(eqx.Module):
     white_factor : float
         Reference white as a multiple of adaptation (5; Eq 8).
     black_ratio : float
-        Reference white over reference black (32; Eq 8).
+        Reference white over reference black (32; Eq 8), above 1: at 1 the
+        display's colour exponent ``S_d`` is 0/0, below it black is
+        brighter than white.
     display_adaptation : float
         Adaptation of the display observer, cd/m2 (25; §4.3). The display's
         white is ``white_factor`` times this (125 cd/m2) and maps to 1.0.
@@ -141,6 +143,7 @@ class Params(eqx.Module):
             raise ValueError(f"goal: expected one of {goals.GOALS}, got {self.goal!r}")
         goals.check_background(self.background, self.background_scale)
         check_fields(self, positive=POSITIVE_FIELDS)
+        check_value("black_ratio", self.black_ratio, lambda v: v > 1, "a number above 1")
         for name in ("display_B_cone", "goal_fraction"):
             check_value(name, getattr(self, name), lambda v: (v > 0) & (v <= 1), "in (0, 1]")
         check_value(
@@ -290,7 +293,7 @@ def luminance_response(params, L_rod, L_cone, sigma_r, sigma_c, B_rod, B_cone):
 def _display_observer(params):
     """sigma and B of the display observer, adapted to ``display_adaptation``.
 
-    sigma from Eqs 4-5 (646 and 722 cd/m2 at 25 cd/m2), ``B_rod`` the static
+    sigma from Eqs 4-5 (722 cd/m2 for rods, 646 for cones at 25 cd/m2), ``B_rod`` the static
     value of Eq 6 (0.0016) and ``B_cone`` the paper's 1.
     """
     A = params.display_adaptation
@@ -447,6 +450,11 @@ def tone_map(params, obs, rgb):
     there, not from a select on a per-pixel test broadcast over the
     channels: XLA's CPU backend evaluates the exponentials after such a
     select unvectorised, four times slower.
+
+    The clip is per channel, as in the paper: a saturated colour whose
+    dominant channel is at 1 can come out darker as it brightens, its
+    exponent (up to 3.04) pushing the other channels down (README,
+    "Saturated colours at display white"). Neutral pixels map monotonically.
     """
     rgb = check_rgb(rgb, "rgb")
     e, s, black = pixel_terms(params, obs, scotopic_luminance(rgb), photopic_luminance(rgb))

@@ -318,7 +318,7 @@ def integrate(rhs, y0, ts, args, *, rtol=1e-8, atol=1e-10, max_steps=65536):
 
     Uses Kvaerno5, an L-stable implicit Runge-Kutta method, with a PID
     step-size controller: the rod bleaching ODE is stiff at daylight
-    (``k = G/16`` is 600 /s at 1e4 cd/m2 against ``1/tau = 1/400`` /s).
+    (``k = G/16`` is 625 /s at 1e4 cd/m2 against ``1/tau = 1/400`` /s).
     When ``args`` holds a :func:`goal_path`, its knots are passed to the
     controller as jump times so that steps do not straddle a kink.
 

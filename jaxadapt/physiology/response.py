@@ -253,10 +253,11 @@ def hunt_F_LS(A):
     implementations use 5e4 (pfstmo) or an exponent 0.4 (colour-science).
     They agree only in the photopic range: pfstmo's ``F_LS`` differs by
     7e-7 relative at 25 cd/m2, 4e-4 at 0.1, 0.6 % at 0.01, 9 % at 1e-3 and
-    by a factor 1.6 to 2.2 from 1e-6 to 1e-4 cd/m2, where its
-    ``sigma_rod`` is 0.45 to 0.63 times ours (0.2 to 0.35 log units: rod
-    vision in starlight); colour-science's differs by 1.4e-5 at 1e-3 cd/m2
-    and 9 % at 1e-5.
+    by a factor 1.6 to 2.2 from 1e-6 to 1e-4 cd/m2, where this alone
+    makes its ``sigma_rod`` 0.45 to 0.63 times ours (0.2 to 0.35 log
+    units: rod vision in starlight; its printed numerator of Eq 4, see
+    :func:`sigma_rod`, takes another factor 5); colour-science's differs
+    by 1.4e-5 at 1e-3 cd/m2 and 9 % at 1e-5.
     """
     j2 = (1.0 / (5e5 * A + 1.0)) ** 2
     return 3800.0 * j2 * (5.0 * A) + 0.2 * (1.0 - j2) ** 4 * power(5.0 * A, 1.0 / 6.0)
