@@ -502,6 +502,36 @@ def test_the_units_of_an_unbounded_parameter_do_not_change_the_fit():
     np.testing.assert_allclose(float(mega.se["b"]), float(unit.se["b"]) * 1e-6, rtol=1e-6)
 
 
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_strongly_correlated_parameters_keep_their_standard_errors(dtype):
+    # A line over x from 500 to 510: intercept and slope correlated at
+    # -0.99998, each well determined. Judged on the eigenvalues of J'J
+    # formed in float32, the pair was "not identified" (se inf); on the
+    # singular values of J it matches statsmodels in both precisions.
+    rng = np.random.default_rng(1)
+    x = np.linspace(500.0, 510.0, 30)
+    y = 3.0 + 0.02 * (x - 500.0) - 10.0 + 0.01 * rng.standard_normal(x.size)
+    ols = sm.OLS(y, sm.add_constant(x)).fit()
+    assert ols.cov_params()[0, 1] / np.prod(ols.bse) < -0.9999
+    with jax.enable_x64(dtype == "float64"):
+        fits = fitting.fit(
+            line,
+            Line(1.0, 1.0),
+            ("a", "b"),
+            y.astype(dtype),
+            args=jnp.asarray(x, dtype),
+            bounds={"a": None, "b": None},
+        )
+    assert bool(fits.converged)
+    rtol = 1e-9 if dtype == "float64" else 1e-4
+    np.testing.assert_allclose([float(fits.se[n]) for n in "ab"], ols.bse, rtol=rtol)
+    np.testing.assert_allclose(
+        [float(fits.estimate[n]) for n in "ab"],
+        ols.params,
+        rtol=1e-3 if dtype == "float32" else 1e-9,
+    )
+
+
 def test_a_parameter_small_beside_a_large_offset_is_fitted_and_identified(decays):
     # a and b of a exp(-t / b) + c on an offset c = 1e8, all three fitted in
     # log units: the columns of a and b are 3e-8 of c's. Judged against
@@ -565,6 +595,23 @@ def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
     f = fitting.fit(decay, Decay(), ABC, data[0].astype(np.float32), args=T, bounds=UNBOUNDED_C)
     assert f.estimate["a"].dtype == jnp.float64 and bool(f.converged)
     np.testing.assert_allclose(float(f.estimate["b"]), float(f64.estimate["b"][0]), rtol=1e-6)
+
+
+@pytest.mark.parametrize("empty", ["nan", "weight 0"])
+def test_a_dataset_without_measurements_stops_at_once(decays, empty):
+    # Its residuals are all masked to 0: every step's gain ratio is 0/0 and
+    # was rejected, so it ran to max_steps (256) and its batch waited.
+    data, f = decays
+    data = np.concatenate([data, np.full((1, T.size), np.nan if empty == "nan" else 1.0)])
+    weights = np.ones_like(data)
+    weights[-1] = 0.0 if empty == "weight 0" else 1.0
+    fits = fitting.fit(decay, Decay(), ABC, data, args=T, weights=weights, bounds=UNBOUNDED_C)
+    assert int(fits.steps[-1]) <= 2 and int(fits.n_masked[-1]) == T.size
+    assert not bool(fits.converged[-1]) and np.all(np.isinf([fits.se[n][-1] for n in ABC]))
+    for name in ABC:
+        assert float(fits.estimate[name][-1]) == float(getattr(Decay(), name))
+        np.testing.assert_array_equal(fits.estimate[name][:-1], f.estimate[name])
+    assert int(np.max(fits.steps)) == int(np.max(f.steps))
 
 
 def test_vmapped_fits_equal_looped_fits(decays):
