@@ -30,9 +30,10 @@ def read_hdr(path):
     path : str or Path
         An OpenEXR, Radiance HDR, PFM or floating-point TIFF file. Its
         colour channels are found by name (:func:`rgb_channels`): R, G and
-        B, or a luminance Y (or a single channel) taken as grey; alpha and
-        other channels are dropped. A Radiance file's pixels are divided by
-        its exposure (:func:`radiance_exposure`).
+        B, or a luminance Y taken as grey; alpha and other channels are
+        dropped. Of a multi-part EXR, the first part that has them is read.
+        A Radiance file's pixels are divided by its exposure
+        (:func:`radiance_exposure`).
 
     Returns
     -------
@@ -61,7 +62,7 @@ def read_hdr(path):
     if image is None:
         raise ValueError(f"{path}: cannot read as an image ({_one_line(oiio.geterror())})")
     try:
-        spec = image.spec()
+        spec, channels = _colour_part(image, path)
         kind = str(spec.format)
         is_rgbe = image.format_name() == "hdr"
         if kind not in _FLOAT_FORMATS and not is_rgbe:
@@ -75,7 +76,7 @@ def read_hdr(path):
     finally:
         image.close()
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
-    pixels = display_window(pixels[..., rgb_channels(path, spec.channelnames)], spec)
+    pixels = display_window(pixels[..., channels], spec)
     if is_rgbe:
         pixels = pixels / np.float32(radiance_exposure(path))
     return pixels
@@ -103,27 +104,49 @@ def display_window(pixels, spec):
     return image
 
 
-def rgb_channels(path, names):
-    """Indices of the red, green and blue channels among ``names``.
+def rgb_channels(names):
+    """Indices of the red, green and blue channels among ``names``, or None.
 
     By name: ``R``, ``G``, ``B``; else a luminance ``Y`` three times (a grey
-    image; of a luminance-chroma EXR, ``Y RY BY``, the luminance alone);
-    else a single channel three times, or the first three of three or more
-    (a file whose channels are not named as colours). Anything else, such
-    as two channels neither of which is ``Y``, is an error naming the file
-    and its channels.
+    image; of a luminance-chroma EXR, ``Y RY BY``, the luminance alone).
+    OpenImageIO names the channels of formats that do not (PFM, TIFF,
+    Radiance) ``R G B`` or ``Y``. Channels named otherwise are not taken by
+    position: a depth ``Z``, normals ``N.x N.y N.z`` or a render pass
+    ``diffuse.R`` would be tone-mapped as if they were the picture.
     """
     names = list(names)
     if {"R", "G", "B"} <= set(names):
         return [names.index(c) for c in "RGB"]
     if "Y" in names:
         return [names.index("Y")] * 3
-    if len(names) == 1:
-        return [0] * 3
-    if len(names) >= 3:
-        return [0, 1, 2]
+    return None
+
+
+def _colour_part(image, path):
+    """``(spec, channels)`` of the first part (subimage) of an open ``image``
+    that has colour channels (:func:`rgb_channels`), the image left at that
+    part; ``ValueError`` naming the file, each part's channels and, for an
+    EXR whose colour is in layers (``beauty.R``, ...), how to pick one."""
+    parts = []
+    while image.seek_subimage(len(parts), 0):
+        spec = image.spec()
+        channels = rgb_channels(spec.channelnames)
+        if channels is not None:
+            return spec, channels
+        parts.append(list(spec.channelnames))
+    names = [name for part in parts for name in part]
+    layers = sorted(
+        {n[:-2] for n in names if n.endswith(".R") and {n[:-1] + "G", n[:-1] + "B"} <= set(names)}
+    )
+    hint = (
+        f"; its layers with R, G and B are {', '.join(layers)}: make one the plain R, G, B "
+        f"(e.g. oiiotool {path} --ch R={layers[0]}.R,G={layers[0]}.G,B={layers[0]}.B -o rgb.exr)"
+        if layers
+        else ""
+    )
+    got = "; ".join(", ".join(part) for part in parts)
     raise ValueError(
-        f"{path}: expected R, G and B channels or a luminance Y, got channels {', '.join(names)}"
+        f"{path}: expected R, G and B channels or a luminance Y, got channels {got}{hint}"
     )
 
 

@@ -72,8 +72,6 @@ def test_png_is_tagged_with_its_encoding(tmp_path, encoding, chunk):
         (("B", "G", "R", "A"), [3.0, 2.0, 1.0]),  # stored B G R A: read as R G B
         (("A", "Y"), [2.0, 2.0, 2.0]),  # grey with alpha
         (("Y", "RY", "BY"), [1.0, 1.0, 1.0]),  # luminance-chroma: the luminance
-        (("Z",), [1.0, 1.0, 1.0]),
-        (("u", "v", "w"), [1.0, 2.0, 3.0]),
     ],
 )
 def test_colour_channels_are_found_by_name(tmp_path, names, expected):
@@ -90,18 +88,49 @@ def test_colour_channels_are_found_by_name(tmp_path, names, expected):
     np.testing.assert_array_equal(io.read_hdr(path), np.broadcast_to(expected, (3, 4, 3)))
 
 
-def test_two_channels_that_are_not_grey_are_refused(tmp_path):
-    path = tmp_path / "motion.exr"
-    spec = oiio.ImageSpec(4, 3, 2, "float")
-    spec.channelnames = ("R", "G")
+def _write_parts(path, *parts):
+    """An EXR with a part (subimage) of each ``(channel names, value)``."""
+    specs = []
+    for names, _ in parts:
+        spec = oiio.ImageSpec(4, 3, len(names), "float")
+        spec.channelnames = names
+        specs.append(spec)
     out = oiio.ImageOutput.create(str(path))
-    assert out.open(str(path), spec)
-    out.write_image(np.ones((3, 4, 2), np.float32))
+    assert out.open(str(path), tuple(specs)) if len(specs) > 1 else out.open(str(path), specs[0])
+    for k, (spec, (names, value)) in enumerate(zip(specs, parts, strict=True)):
+        if k:
+            assert out.open(str(path), spec, "AppendSubimage")
+        out.write_image(np.full((3, 4, len(names)), value, np.float32))
     out.close()
-    with pytest.raises(
-        ValueError, match=r"motion\.exr: expected R, G and B channels .* got channels R, G"
-    ):
+
+
+@pytest.mark.parametrize(
+    "names, match",
+    [
+        (("R", "G"), "got channels R, G$"),
+        (("Z",), "got channels Z$"),  # a depth pass is not a grey picture
+        (("N.x", "N.y", "N.z"), r"got channels N\.x, N\.y, N\.z$"),
+        (
+            ("diffuse.R", "diffuse.G", "diffuse.B", "beauty.R", "beauty.G", "beauty.B"),
+            r"layers with R, G and B are beauty, diffuse: .*--ch R=beauty\.R,G=beauty\.G,B=",
+        ),
+    ],
+)
+def test_channels_that_are_not_colour_are_refused(tmp_path, names, match):
+    # They were taken by position (the first three, or a single one as grey)
+    # and tone-mapped as if they were the picture.
+    path = tmp_path / "passes.exr"
+    _write_parts(path, (names, 5000.0))
+    with pytest.raises(ValueError, match=r"passes\.exr: expected R, G and B channels .*" + match):
         io.read_hdr(path)
+
+
+def test_the_first_part_with_colour_is_read(tmp_path):
+    # A multi-part EXR whose first part is a depth pass: only part 0 was
+    # read, and its depth (5000) rendered as luminance.
+    path = tmp_path / "parts.exr"
+    _write_parts(path, (("Z",), 5000.0), (("R", "G", "B", "A"), 2.0))
+    np.testing.assert_array_equal(io.read_hdr(path), np.full((3, 4, 3), 2.0))
 
 
 @pytest.mark.parametrize(
