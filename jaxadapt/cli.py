@@ -77,6 +77,24 @@ def _positive(text):
     return value
 
 
+#: The frame rates ``--fps`` takes, frames/s: a frame a day (27.8 h) to a
+#: frame a microsecond. Outside them the video's rate rounded to 0 (below
+#: 5e-7, after the whole render) or ffmpeg refused it, and a frame time
+#: beyond float32 (1e-300 s, 1e300 s) gave black frames or a message about
+#: ``dt`` that did not name ``--fps``.
+FPS_RANGE = (1e-5, 1e6)
+
+
+def _frame_rate(text):
+    value = _positive(text)
+    low, high = FPS_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(
+            f"expected frames per second from {low:g} to {high:g}, got {text!r}"
+        )
+    return value
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line, as every other error of
     the command line (the usage is one ``--help`` away)."""
@@ -156,10 +174,10 @@ def build_parser():
     )
     render.add_argument(
         "--fps",
-        type=_positive,
+        type=_frame_rate,
         default=None,
-        help="frames per second (default: 30 for FILE sequences, the scene's own for a "
-        "built-in scene: 30, or one frame per 30 ms for title-step; the flash scene adds a "
+        help="frames per second, 1e-5 to 1e6 (default: 30 for FILE sequences, the scene's own "
+        "for a built-in scene: 30, or one frame per 30 ms for title-step; the flash scene adds a "
         "frame where the flash starts or ends between two, so that the simulation holds it for "
         "exactly 1/8 s: the outputs show these frames too, at the same rate)",
     )
@@ -224,15 +242,16 @@ def build_parser():
         "--pixels-per-degree",
         type=_positive,
         default=None,
-        help="resolution of the frames at the eye, for the foveal goal (default: the "
-        "scene's own; 30 for files)",
+        help="resolution of the frames at the eye: for the foveal goal, and for jacobs2015's "
+        "fovea, acuity loss and afterimage blur (default: the scene's own; 30 for files)",
     )
     render.add_argument(
         "--out",
         type=_folder,
         default=Path("out"),
         help="output folder (default: ./out); what an earlier render wrote there (listed in "
-        "its .jaxadapt-render) is replaced, other files and the inputs are left alone",
+        "its .jaxadapt-render) is replaced, and so is a file with the name of an output of "
+        "this one; other files and the inputs are left alone",
     )
     render.add_argument(
         "--format",
@@ -240,9 +259,10 @@ def build_parser():
         choices=FORMATS,
         default=None,
         dest="formats",
-        help="output format, repeatable: png (sRGB frames), mp4 (H.264 video; an odd "
-        "width or height is padded by one edge pixel, as 4:2:0 needs), exr or pfm "
-        "(linear display values in [0, 1], one file per frame); default: png and mp4",
+        help="output format, repeatable: png (frames, as --encoding), mp4 (H.264 video, "
+        "BT.709, tagged with its encoding; an odd width or height is padded by one edge "
+        "pixel, as 4:2:0 needs), exr or pfm (linear display values in [0, 1], one file per "
+        "frame; for jacobs2015 its display-encoded J); default: png and mp4",
     )
     render.add_argument(
         "--encoding",
@@ -375,11 +395,14 @@ def _staged(out, replaces=None, keep=()):
     output is refused before anything is done: the run would write over it.
     On any error nothing reaches ``out`` (earlier results stay as they were)
     and the folders made for it are removed. The staging folder is removed
-    either way.
+    either way. ``out`` is resolved first: through a ``..`` after a folder
+    that does not exist (``new/../out``), the folders made would be other
+    than the ones named, and a failed run left ``out`` behind.
     """
+    out = out.resolve()
     keep = {Path(p).resolve() for p in keep}
     for path in sorted(keep):
-        if replaces is not None and path.parent == out.resolve() and replaces.fullmatch(path.name):
+        if replaces is not None and path.parent == out and replaces.fullmatch(path.name):
             raise UsageError(
                 f"{path}: an input in --out named as this command's outputs, which a run "
                 "there may write over or remove; choose another --out"
@@ -583,7 +606,7 @@ def render(args, console):
     with _staged(out, replaces=RENDER_OUTPUTS, keep=inputs) as staging:
         with contextlib.ExitStack() as stack:
             send_video = (
-                stack.enter_context(io.video_writer(staging / "video.mp4", fps))
+                stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
                 if "mp4" in formats
                 else (lambda frames: None)
             )

@@ -205,6 +205,9 @@ def atomic_path(path):
 #: OpenImageIO's names of the display encodings of :mod:`jaxadapt.display`,
 #: with which 8-bit files are tagged (PNG: an sRGB chunk, or a gAMA of 1/2.2).
 COLOUR_SPACES = {"srgb": "sRGB", "gamma": "Gamma2.2"}
+#: ffmpeg's name of each encoding's transfer function, for a video's tag
+#: (BT.470 M is a pure gamma of 2.2).
+VIDEO_TRANSFERS = {"srgb": "iec61966-2-1", "gamma": "bt470m"}
 
 
 def write_image(path, pixels, encoding="srgb"):
@@ -231,13 +234,20 @@ def write_image(path, pixels, encoding="srgb"):
 
 
 @contextlib.contextmanager
-def video_writer(path, fps):
+def video_writer(path, fps, encoding="srgb"):
     """Stream uint8 frames into an H.264 MP4 (the ffmpeg of imageio-ffmpeg).
 
-    Yields ``send(frames)`` taking ``(K, H, W, 3)`` uint8 chunks; frames of
-    odd size are padded by one edge pixel (4:2:0 video needs even sizes).
-    The file appears under ``path`` only when the block completes and
-    ffmpeg has exited with success.
+    Yields ``send(frames)`` taking ``(K, H, W, 3)`` uint8 chunks of BT.709
+    RGB encoded with ``encoding`` (``"srgb"`` or ``"gamma"``, 2.2); frames
+    of odd size are padded by one edge pixel (4:2:0 video needs even
+    sizes). The file appears under ``path`` only when the block completes
+    and ffmpeg has exited with success.
+
+    The RGB is converted to YCbCr with the BT.709 matrix, and the stream is
+    tagged with BT.709 primaries and matrix and the encoding's transfer
+    function, so that a player decodes the colours that were sent. (By
+    default ffmpeg converts with BT.601's matrix and tags nothing: players
+    that assume BT.709 for HD video showed pure red at luma 81 for 63.)
 
     ffmpeg is run here, not through ``imageio_ffmpeg.write_frames``, whose
     end does not check ffmpeg's exit status: a size that H.264 cannot
@@ -288,6 +298,8 @@ def video_writer(path, fps):
                     "-f", "rawvideo", "-pix_fmt", "rgb24",
                     "-s", f"{W + W % 2}x{H + H % 2}", "-r", str(rate), "-i", "-",
                     "-an", "-vcodec", "libx264",
+                    "-vf", "scale=out_color_matrix=bt709:out_range=tv,setparams="
+                    f"colorspace=bt709:color_primaries=bt709:color_trc={VIDEO_TRANSFERS[encoding]}",
                     "-pix_fmt", "yuv420p", "-crf", "25", "-f", "mp4", tmp,
                 ]  # fmt: skip
                 with warnings.catch_warnings():

@@ -178,6 +178,16 @@ def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):
     status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
     _assert_one_line_error(status, err, "bad.exr", "non-negative")
     assert not (tmp_path / "o").exists()
+    # Through a folder that does not exist and back (new/../o), the folders
+    # made were new and o, and only new was removed; a good run left new.
+    status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "new" / ".." / "o"))
+    _assert_one_line_error(status, err, "bad.exr", "non-negative")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr"]
+    good = tmp_path / "good.exr"
+    io.write_image(good, np.full((4, 4, 3), 1.0, np.float32))
+    out = str(tmp_path / "new" / ".." / "o")
+    assert _run(capsys, "render", str(good), "--out", out, "--format", "exr")[0] == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr", "good.exr", "o"]
 
 
 def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
@@ -660,6 +670,10 @@ def test_an_interrupted_render_leaves_nothing_and_says_so(tmp_path, signum):
         (["psychometric", "simulate", "--observers", "2", "--seed", "-1"], "--seed"),
         (["render", "--multiplier", "0"], "--multiplier"),
         (["render", "--format", "gif"], "--format"),
+        # A rate whose video rounded to 0 frames/s (after the whole render)
+        # or whose frame time left float32 (black frames, or "dt").
+        (["render", "--fps", "1e-7"], "from 1e-05 to 1e+06"),
+        (["render", "--fps", "1e300"], "from 1e-05 to 1e+06"),
     ],
 )
 def test_argument_errors_are_one_line(capsys, argv, option):

@@ -155,3 +155,25 @@ def test_exr_data_window_is_placed_in_the_display_window(tmp_path, x, y, w, h):
     image = io.read_hdr(path)
     assert image.shape == (12, 16, 3)
     np.testing.assert_array_equal(image, expected)
+
+
+@pytest.mark.parametrize("encoding, transfer", [("srgb", "iec61966-2-1"), ("gamma", "bt470m")])
+def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer):
+    # ffmpeg's default converted RGB with BT.601's matrix and tagged nothing:
+    # pure red had luma 81 where a BT.709 player expects 63 (16 + 219 * 0.2126).
+    import subprocess
+
+    import imageio_ffmpeg
+
+    path = tmp_path / "red.mp4"
+    with io.video_writer(path, 30, encoding) as send:
+        send(np.broadcast_to(np.array([255, 0, 0], np.uint8), (2, 16, 16, 3)))
+    ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
+    luma = subprocess.run(
+        [ffmpeg, "-v", "error", "-i", str(path), "-f", "rawvideo", "-pix_fmt", "yuv420p", "-"],
+        capture_output=True,
+        check=True,
+    ).stdout
+    assert abs(int(np.frombuffer(luma, np.uint8)[8 * 16 + 8]) - 63) <= 1
+    info = subprocess.run([ffmpeg, "-i", str(path)], capture_output=True, text=True).stderr
+    assert f"yuv420p(tv, bt709/bt709/{transfer}" in info
