@@ -48,6 +48,30 @@ def read_hdr(path):
         The file cannot be read, or does not hold floating-point data.
     """
     path = Path(path)
+    with _hdr_image(path) as (image, spec, channels):
+        pixels = image.read_image(format="float")
+        if pixels is None:
+            raise ValueError(f"{path}: cannot read pixels ({_one_line(image.geterror())})")
+        is_rgbe = image.format_name() == "hdr"
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
+    pixels = display_window(pixels[..., channels], spec)
+    if is_rgbe:
+        pixels = pixels / np.float32(radiance_exposure(path))
+    return pixels
+
+
+def hdr_size(path):
+    """``(width, height)`` of the image :func:`read_hdr` would read, from the
+    file's header alone, with the same errors."""
+    with _hdr_image(Path(path)) as (_, spec, _):
+        return spec.full_width, spec.full_height
+
+
+@contextlib.contextmanager
+def _hdr_image(path):
+    """The open OpenImageIO input of an HDR file at its colour part, that
+    part's spec and its colour channels (:func:`_colour_part`), after the
+    checks of :func:`read_hdr`; closed after the block."""
     if path.is_dir():
         raise ValueError(f"{path}: expected an HDR image file, got a folder")
     if not path.is_file():
@@ -64,22 +88,14 @@ def read_hdr(path):
     try:
         spec, channels = _colour_part(image, path)
         kind = str(spec.format)
-        is_rgbe = image.format_name() == "hdr"
-        if kind not in _FLOAT_FORMATS and not is_rgbe:
+        if kind not in _FLOAT_FORMATS and image.format_name() != "hdr":
             raise ValueError(
                 f"{path}: expected HDR data (float EXR, Radiance HDR, PFM or float TIFF), "
                 f"got {kind} {image.format_name()}"
             )
-        pixels = image.read_image(format="float")
-        if pixels is None:
-            raise ValueError(f"{path}: cannot read pixels ({_one_line(image.geterror())})")
+        yield image, spec, channels
     finally:
         image.close()
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
-    pixels = display_window(pixels[..., channels], spec)
-    if is_rgbe:
-        pixels = pixels / np.float32(radiance_exposure(path))
-    return pixels
 
 
 def display_window(pixels, spec):

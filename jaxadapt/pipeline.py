@@ -14,7 +14,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt.io import read_hdr
+from jaxadapt.io import hdr_size, read_hdr
 
 #: Pixels per degree assumed for files, whose viewing geometry is unknown:
 #: a 1920-pixel-wide frame seen across 64 degrees.
@@ -102,27 +102,25 @@ def from_files(paths, fps, multiplier=1.0):
     Raises
     ------
     FileNotFoundError
-        A file does not exist (checked for all files up front).
+        A file does not exist.
     ValueError
-        The first file cannot be read; later, when its chunk is read, a
-        frame whose size differs from the first or which holds negative,
-        NaN or infinite values.
+        A file cannot be read as an HDR image or its size differs from the
+        first's (all checked up front, from the files' headers); later, when
+        its chunk is read, a frame that holds negative, NaN or infinite
+        values.
     """
     paths = [Path(p) for p in paths]
     first = read_hdr(paths[0])
     for p in paths[1:]:
-        if p.is_dir():
-            raise ValueError(f"{p}: expected an HDR image file, got a folder")
-        if not p.is_file():
-            raise FileNotFoundError(f"{p}: no such file")
+        width, height = hdr_size(p)
+        if (height, width) != first.shape[:2]:
+            raise ValueError(
+                f"{p}: expected {first.shape[1]}x{first.shape[0]} like {paths[0]}, "
+                f"got {width}x{height}"
+            )
 
     def read(i):
         frame = first if i == 0 else read_hdr(paths[i])
-        if frame.shape != first.shape:
-            raise ValueError(
-                f"{paths[i]}: expected {first.shape[1]}x{first.shape[0]} like {paths[0]}, "
-                f"got {frame.shape[1]}x{frame.shape[0]}"
-            )
         bad = ~(np.isfinite(frame) & (frame >= 0))
         if bad.any():
             raise ValueError(

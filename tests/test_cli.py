@@ -148,7 +148,24 @@ def test_frames_of_different_sizes(tmp_path, capsys):
     io.write_image(a, np.ones((4, 4, 3), np.float32))
     io.write_image(b, np.ones((5, 4, 3), np.float32))
     status, err = _run(capsys, "render", str(a), str(b), "--out", str(tmp_path / "o"))
-    _assert_one_line_error(status, err, "b.exr", "expected 4x4")
+    _assert_one_line_error(status, err, "b.exr", "expected 4x4", "got 4x5")
+
+
+def test_a_bad_file_late_in_a_sequence_is_found_before_rendering(tmp_path):
+    # Sizes and readability come from the headers, up front: a wrong last
+    # frame was found only when its chunk was read, after the render of all
+    # the frames before it.
+    from jaxadapt import pipeline
+
+    paths = [tmp_path / f"f{k}.exr" for k in range(4)]
+    for path in paths[:3]:
+        io.write_image(path, np.ones((4, 6, 3), np.float32))
+    io.write_image(paths[3], np.ones((4, 5, 3), np.float32))
+    with pytest.raises(ValueError, match=r"f3\.exr: expected 6x4 like .*f0\.exr, got 5x4"):
+        pipeline.from_files(paths, 30.0)
+    paths[3].write_bytes(b"not an image")
+    with pytest.raises(ValueError, match=r"f3\.exr: cannot read as an image"):
+        pipeline.from_files(paths, 30.0)
 
 
 def test_unwritable_output(tmp_path, capsys):
