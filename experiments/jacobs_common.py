@@ -39,14 +39,15 @@ def run_scene(scene, params, seed=0):
 
 
 def linear(display, params):
-    """Linear display values of gamma-encoded ones (``J^(1/gamma)``)."""
-    return np.asarray(display) ** (1.0 / float(params.gamma))
+    """Linear display values of the operator's display values, numpy
+    (:func:`jaxadapt.operators.jacobs2015.decode`)."""
+    return np.asarray(op.decode(params, display))
 
 
 def encode(values, params):
-    """Display values ``J = clip(R, 0, 1)^gamma`` of linear ones ``R`` (the
-    inverse of :func:`linear` on [0, 1])."""
-    return np.clip(values, 0.0, 1.0) ** float(params.gamma)
+    """Display values of linear ones, numpy
+    (:func:`jaxadapt.operators.jacobs2015.encode`)."""
+    return np.asarray(op.encode(params, values))
 
 
 def scaled_to_max(display, params, axis=None):

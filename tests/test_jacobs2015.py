@@ -273,6 +273,13 @@ def test_purkinje_darkens_red_and_brightens_blue_in_the_dark():
     np.testing.assert_allclose(on[:, 2], off[:, 2], rtol=1e-9)
 
 
+def test_display_encoding_is_the_gamma_of_section_2_4_and_decode_undoes_it():
+    R = jnp.array([-0.5, 0.0, 0.25, 1.0, 3.0])
+    J = op.encode(BARE, R)
+    np.testing.assert_allclose(J, np.clip(R, 0, 1) ** 0.455, rtol=1e-12)
+    np.testing.assert_allclose(op.decode(BARE, J), np.clip(R, 0, 1), rtol=1e-12, atol=1e-300)
+
+
 def test_mesopic_colour_turns_grey_dull_purple():
     # §2.3.2: in the dark colour ratios drift to a dull purple (Shin et al.
     # 2004); off, the output keeps the input's colour ratios.

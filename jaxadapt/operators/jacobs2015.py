@@ -718,6 +718,18 @@ def blur_for_display(pixels_per_degree, fps, blur=1.0):
 # -- gaze ---------------------------------------------------------------------
 
 
+def encode(params, R):
+    """Display values ``J = clip(R, 0, 1)^gamma`` of linear responses ``R``
+    (§2.4, the display's gamma compensation, ``gamma = 0.455``)."""
+    return power(jnp.clip(R, 0.0, 1.0), params.gamma)
+
+
+def decode(params, J):
+    """Linear display values ``J^(1/gamma)`` of display values ``J`` in [0, 1]:
+    the inverse of :func:`encode` (before dithering), for measuring frames."""
+    return power(J, 1.0 / params.gamma)
+
+
 def _pixel(gaze):
     """The pixel of a gaze point, rounding halves up (not to even), so that
     equal moves of the gaze give equal moves of the maps."""
@@ -785,7 +797,7 @@ def _frame(params, state, frame, dt, sample):
         scene = acuity_loss(params, frame, rho, X)
     response = tone_map(params, scene, rho, sigma)
     response = afterimages(params, response, seen, rec, falloff(params, shape, gaze))
-    J = power(jnp.clip(response, 0.0, 1.0), params.gamma)
+    J = encode(params, response)
     if params.dithering:
         J = dither(J, jax.random.fold_in(key_dither, seen.frame), params.levels)
 

@@ -284,11 +284,6 @@ def _check_conditions(protocol):
         )
 
 
-def _linear(display, params):
-    """Linear display values of the operator's gamma-encoded output."""
-    return display ** (1.0 / params.gamma)
-
-
 def _whole_frames(name, seconds, fps, least):
     """``seconds`` as a whole number (at least ``least``) of frames at ``fps``,
     ``n / fps`` exactly, so that the flash's edges fall on frame starts; a
@@ -400,7 +395,7 @@ def afterimage_displays(
     def render(strength):
         version = dataclasses.replace(params, j1=strength)
         out, _ = jacobs2015.run(version, frames, scene.dt, gaze=gaze, key=jax.random.key(0))
-        return _linear(out, version)
+        return jacobs2015.decode(version, out)
 
     weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
     shown = jnp.asarray(presented)
@@ -468,7 +463,7 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
     def render(params, batch):
         def one(f):
             out, _ = jacobs2015.run(params, f, 1.0 / fps, gaze=gaze, key=key)
-            lin = _linear(out, params)
+            lin = jacobs2015.decode(params, out)
             return lin * jnp.mean(photopic_luminance(f)) / jnp.mean(photopic_luminance(lin))
 
         return jax.vmap(one)(batch)
