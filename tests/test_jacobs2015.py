@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxadapt import color, display, scenes
+from jaxadapt import color, display, scenes, spatial
 from jaxadapt.operators import jacobs2015 as op
 from jaxadapt.physiology.response import naka_rushton
 from jaxadapt.spatial import gaussian_blur
@@ -111,6 +111,20 @@ def test_adaptation_follows_the_gaze_at_the_papers_rates():
     np.testing.assert_allclose(np.diff(A[8:20]), 0.75 / FPS, rtol=1e-9)
     assert np.asarray(diag.A_T)[-1] == pytest.approx(4.0, abs=0.01)
     assert float(out[9, 15, 4].mean()) > float(out[-1, 15, 4].mean())  # darkens as it adapts
+
+
+def test_a_small_bright_source_at_the_gaze_raises_the_target():
+    # A_T is "the log of the average scene luminance in a small patch around
+    # the user's gaze" (§2.1; Fig. 2: fixating a bright point darkens the
+    # scene). A 1e6 cd/m2 lamp 12 pixels across on a 20 cd/m2 field: the
+    # foveal mean's log, 4.6; the log average (31 cd/m2) stayed at the floor.
+    y, x = np.mgrid[:64, :64]
+    frame = np.where((np.hypot(y - 32, x - 32) < 6)[..., None], 1e6, 20.0) * np.ones(3)
+    gaze = jnp.array([32.0, 32.0])
+    w = spatial.foveal_weights((64, 64), gaze, 64.0)
+    expected = np.log10(np.sum(np.asarray(w) * frame[..., 0]))
+    A_T = op.adaptation_target(op.Params(), jnp.asarray(frame), gaze)
+    assert float(A_T) == pytest.approx(expected, abs=1e-9) and 4.5 < expected < 4.7
 
 
 def test_global_adaptation_off_keeps_the_initial_state():

@@ -131,6 +131,15 @@ def foveal_log_average(L, gaze, pixels_per_degree, floor=LUMINANCE_FLOOR):
     return jnp.exp(plane_sum(w * jnp.log(jnp.maximum(L, floor))))
 
 
+def foveal_average(L, gaze, pixels_per_degree):
+    """Average luminance (cd/m2) weighted over a 1-degree fovea around ``gaze``:
+    ``sum w L`` with the weights of :func:`jaxadapt.spatial.foveal_weights`
+    (the arithmetic counterpart of :func:`foveal_log_average`, in which a
+    small bright source counts for its light, not its log)."""
+    w = foveal_weights(L.shape[-2:], gaze, pixels_per_degree, dtype=L.dtype)
+    return plane_sum(w * L)
+
+
 #: Names accepted by the operators' ``goal`` option.
 GOALS = ("log_average", "white_fraction", "foveal")
 

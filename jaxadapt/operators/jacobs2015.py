@@ -35,9 +35,15 @@ and tested in ``tests/test_jacobs2015.py``):
   display's linear range at 1 cd/m2, 19 % at 100 cd/m2, 40 % at 1e4 cd/m2
   and 68 % at 1e7 cd/m2, so brighter scenes look brighter, and M < 1 keeps
   sigma finite.
-* **Adaptation target**: the foveal log average of photopic luminance
-  (:func:`jaxadapt.operators.goal.foveal_log_average`, a 1-degree patch),
-  floored at ``adaptation_floor`` (100 cd/m2, §2.4).
+* **Adaptation target**: "the log of the average scene luminance in a
+  small patch around the user's gaze" (§2.1), read as written: log10 of the
+  foveally weighted mean of photopic luminance
+  (:func:`jaxadapt.operators.goal.foveal_average`, a 1-degree patch), not
+  the mean of its logs, floored at ``adaptation_floor`` (100 cd/m2, §2.4).
+  A small bright source at the gaze then darkens the scene, as Fig. 2
+  describes: a 1e6 cd/m2 lamp 12 pixels wide on a 20 cd/m2 field, fixated
+  at 64 pixels per degree, gives 10^4.6 cd/m2 where the log average (31
+  cd/m2) stayed at the floor.
 * **rho** (Eq 13) is computed per pixel from the *local* photopic luminance,
   the scene blurred at the coarsest acuity scale ``sigma_7``: the paper ties
   acuity to "the local luminance level", and since the adaptation level
@@ -93,7 +99,7 @@ from jaxadapt.operators.checks import (
     check_frames,
     check_frames_and_dt,
 )
-from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_log_average, frame_centre
+from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_average, frame_centre
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import (
@@ -418,10 +424,10 @@ def semi_saturation(params, A):
 
 
 def adaptation_target(params, frame, gaze):
-    """Target ``A_T`` of Eq 3: log10 of the foveal log-average photopic
+    """Target ``A_T`` of Eq 3: log10 of the foveal average photopic
     luminance around ``gaze``, floored at ``adaptation_floor`` (§2.4)."""
     L = transform(frame, params.w_P)
-    mean = foveal_log_average(L, gaze, params.pixels_per_degree)
+    mean = foveal_average(L, gaze, params.pixels_per_degree)
     return jnp.log10(jnp.maximum(mean, params.adaptation_floor))
 
 
