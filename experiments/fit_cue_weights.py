@@ -68,10 +68,10 @@ What it shows (full run; the numbers are printed and written to
   desaturation weight -0.115 +- 0.023, blur -0.058 +- 0.011 log10 units
   per unit of cue. The interval excludes 0, as the paper's significant
   result says it should.
-* Afterimage weight ``a = +0.038 +- 0.029`` (95 % interval -0.019 to
-  +0.095): one experiment of 11 participants does not tell it from 0, as
+* Afterimage weight ``a = +0.040 +- 0.029`` (95 % interval -0.017 to
+  +0.098): one experiment of 11 participants does not tell it from 0, as
   the paper's non-significant test says. The two estimates correlate at
-  r = 0.016: each median pins its own weight. (With the retinal maps
+  r = 0.000: each median pins its own weight. (With the retinal maps
   blurred 1 pixel a frame on these small renders, 2 degrees a second
   where the paper's spread 0.086, the rim's tint was -0.11, the
   desaturation weight carried part of the -0.02, and the fit gave ``a =

@@ -15,7 +15,7 @@ and prints the afterimage's hue 0.1 s after the blink by scene decade.
 The paper notes "cyan, green, and pink elements in each afterimage". Here
 (full run, hue of the mean linear colour) 0.1 s after the blink the
 10^8.5 scene shows all three at once: cyan where it exceeded 10^8 cd/m2
-(177 degrees; 164 at 10^7 to 10^8), green at 10^4 to 10^7 (106 to 141)
+(177 degrees; 164 at 10^7 to 10^8), green at 10^4 to 10^7 (106 to 142)
 and pink below 10^4, over the chart and the glow's rim (344 to 355); the
 10^4.5 scene shows yellow-green (87) above 10^4 and pink below (344 to
 353), and the 10^3.5 scene pink only (344 to 347).

@@ -555,14 +555,20 @@ def test_bad_dt_and_missing_key_are_named():
         # broadcasting error from inside run.
         ({"b1": (1e-3, 1e-4)}, r"b1: expected shape \(3,\) .* got shape \(2,\)"),
         ({"H": np.eye(2)}, r"H: expected shape \(3, 3\)"),
+        # Eq 11 as printed: after long darkness C rounded to C_max, alpha was
+        # infinite and the frame black, its gradients NaN.
+        ({"calcium_epsilon": 0.0}, "calcium_epsilon: expected a positive, finite number"),
+        # M >= 1 made sigma NaN, M = 0 infinite: black frames.
+        ({"plateau_max": 1.2}, r"plateau_max: expected in \(0, 1\)"),
+        ({"plateau_max": 0.0}, r"plateau_max: expected in \(0, 1\)"),
     ],
 )
 def test_a_parameter_out_of_its_range_is_named(fields, match):
     # A negative adaptation rate or a NaN decay ran and gave wrong frames
-    # without a word. (calcium_epsilon = 0 is allowed: Eq 11 as printed.)
+    # without a word.
     with pytest.raises(ValueError, match=match):
         op.Params(**fields)
-    op.Params(calcium_epsilon=0.0, j1=0.0, j2=0.0, g=0.0)
+    op.Params(j1=0.0, j2=0.0, g=0.0)
 
 
 def test_step_rejects_a_frame_of_another_shape():
@@ -659,7 +665,8 @@ def test_afterimage_maps_spread_the_same_angle_on_any_display():
     def spread_deg(ppd, fps):
         params = op.Params(afterimage_blur=op.blur_for_display(ppd, fps))
         point = jnp.zeros((160, 160, 3)).at[80, 80].set(1.0)
-        maps = jax.lax.fori_loop(0, int(fps), lambda _, m: op.blur_maps(params, m, m)[0], point)
+        blur = lambda _, m: op.blur_maps(params, m, m, 0.0, 0.0)[0]  # noqa: E731 (darkness)
+        maps = jax.lax.fori_loop(0, int(fps), blur, point)
         profile = np.asarray(maps[80, :, 0] / maps[80, :, 0].sum())
         return np.sqrt(np.sum(profile * (np.arange(160) - 80) ** 2)) / ppd
 
@@ -667,6 +674,18 @@ def test_afterimage_maps_spread_the_same_angle_on_any_display():
     assert paper == pytest.approx(np.sqrt(30) / 64, rel=0.01)
     for ppd, fps in ((128.0, 30.0), (128.0, 120.0), (25.6, 30.0), (25.6, 120.0)):
         assert spread_deg(ppd, fps) == pytest.approx(paper, rel=0.01)
+
+
+def test_a_steady_scene_seen_steadily_leaves_no_afterimage():
+    # Started at equilibrium, with the scene and the gaze still, Eqs 4-12
+    # change nothing. Blurring the whole maps (not their departures from
+    # equilibrium) built a ring around a bright lamp: 0.029 in 2 s.
+    y, x = np.mgrid[:48, :48]
+    frame = np.where((np.hypot(y - 24, x - 24) < 6)[..., None], 1e6, 20.0) * np.ones(3)
+    frames = jnp.asarray(np.stack([frame] * 60), jnp.float32)
+    params = op.Params(acuity=False, dithering=False, afterimage_blur=1.0)
+    out, _ = op.run(params, frames, 1 / 30, gaze=jnp.full((60, 2), 24.0))
+    np.testing.assert_allclose(out[-1], out[0], atol=1e-6)
 
 
 def test_only_switches_on_the_named_effects_and_names_unknown_ones():

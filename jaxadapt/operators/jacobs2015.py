@@ -31,10 +31,10 @@ and tested in ``tests/test_jacobs2015.py``):
 
 * **Plateau M** (Eq 2). The paper says only that M "has a form similar to
   Eq. (1)". We use ``M(I) = plateau_max I^q / (I^q + plateau_sigma^q)``
-  (0.8, 1e4 cd/m2, q = 0.25): the adapted luminance is shown at 7 % of the
-  display's linear range at 1 cd/m2, 19 % at 100 cd/m2, 40 % at 1e4 cd/m2
-  and 68 % at 1e7 cd/m2, so brighter scenes look brighter, and M < 1 keeps
-  sigma finite.
+  (0.8, 1e4 cd/m2, q = 0.25): the adapted luminance is shown at 19 % of
+  the display's linear range at 100 cd/m2 (the adaptation floor of §2.4,
+  below which A does not go), 40 % at 1e4 cd/m2 and 68 % at 1e7 cd/m2, so
+  brighter scenes look brighter, and M < 1 keeps sigma finite.
 * **Adaptation target**: "the log of the average scene luminance in a
   small patch around the user's gaze" (§2.1), read as written: log10 of the
   foveally weighted mean of photopic luminance
@@ -60,9 +60,16 @@ and tested in ``tests/test_jacobs2015.py``):
 * **Total darkness**: Eq 11 is ``alpha = (C_max - C_inf) / (C_max - C)``,
   0/0 once calcium reaches ``C_max``. We use
   ``alpha = (C_max - C_inf + e) / (C_max - C + e)`` with
-  ``e = calcium_epsilon C_max``: equal to Eq 11 away from darkness, 1 (no
-  gain) in the 0/0 limit, and bounded by about ``1/calcium_epsilon`` when
-  light returns after long darkness (the brief boost of Fig. 1, frame 4).
+  ``e = calcium_epsilon C_max``: 1 (no gain) in the 0/0 limit, and bounded
+  by about ``1/calcium_epsilon`` when light returns after long darkness (the
+  brief boost of Fig. 1, frame 4). It departs from Eq 11 where the
+  responses ``C_max - C`` and ``C_max - C_inf`` approach ``e``: at the
+  adaptation floor (sigma = 778 cd/m2) within 2 % of Eq 11's gain
+  ``alpha^j2`` from 10 cd/m2 up, and in mesopic light less: 1.35 against
+  1.62 for a pixel adapted to 0.01 cd/m2 and shown 1 cd/m2, 0.74 against
+  0.62 the other way. ``calcium_epsilon`` must be positive: at 0, after
+  long darkness C rounds to C_max and ``alpha`` is infinite (the frame went
+  black, its gradients NaN).
 * **Colour**: cone excitations are Hunt-Pointer-Estevez LMS of the BT.709
   pixels, scaled so that white excites the three cones equally (Fig. 4:
   "white (stimulating all cone types equally)"). The local-adaptation gain
@@ -169,10 +176,11 @@ class Params(eqx.Module):
         Lowest luminance the viewer adapts to, cd/m2 (100; §2.4).
     plateau_max, plateau_sigma, plateau_n : float
         Plateau ``M(I) = plateau_max I^q / (I^q + plateau_sigma^q)``,
-        ``q = plateau_n``, of Eq 2 (0.8, 1e4 cd/m2, 0.25; our choice).
+        ``q = plateau_n``, of Eq 2 (0.8, 1e4 cd/m2, 0.25; our choice);
+        ``plateau_max`` in (0, 1).
     calcium_epsilon : float
-        Regularisation of Eq 11 as a fraction of ``C_max`` (1e-3; see module
-        notes).
+        Regularisation of Eq 11 as a fraction of ``C_max``, positive (1e-3;
+        see module notes).
     scotopic_colour : array, (3,)
         Colour ratio of mesopic desaturation (:data:`SCOTOPIC_COLOUR`).
     pixels_per_degree : float
@@ -261,6 +269,8 @@ class Params(eqx.Module):
                     f"{jnp.shape(value)}"
                 )
         check_value("rho_step", self.rho_step, lambda v: v >= 0, ">= 0 log10 units")
+        # M >= 1 makes sigma of Eq 2 NaN (and M = 0 infinite): a black frame.
+        check_value("plateau_max", self.plateau_max, lambda v: (v > 0) & (v < 1), "in (0, 1)")
         check_fields(self, positive=POSITIVE_FIELDS, non_negative=NON_NEGATIVE_FIELDS)
         if not (self.afterimage_blur >= 0):
             raise ValueError(f"afterimage_blur: expected >= 0 pixels, got {self.afterimage_blur!r}")
@@ -294,6 +304,7 @@ POSITIVE_FIELDS = (
     "c2",
     "plateau_sigma",
     "plateau_n",
+    "calcium_epsilon",
     "pixels_per_degree",
     "afterimage_falloff_deg",
     "acuity_noise_period",
@@ -301,9 +312,8 @@ POSITIVE_FIELDS = (
 )
 
 #: The fields of :class:`Params` that must be finite and at least 0 (the
-#: afterimage strengths, the acuity noise's spread, and the calcium floor,
-#: 0 for Eq 11 as printed).
-NON_NEGATIVE_FIELDS = ("j1", "j2", "g", "calcium_epsilon")
+#: afterimage strengths and the acuity noise's spread).
+NON_NEGATIVE_FIELDS = ("j1", "j2", "g")
 
 #: The effects that :class:`Params` can switch off, in the pipeline's order.
 EFFECTS = ("bleaching", "local_adaptation", "purkinje", "mesopic_colour", "acuity", "dithering")
@@ -683,17 +693,29 @@ def retinal_shift(maps, shift, fill):
     return jnp.where(inside[..., None], moved, fill)
 
 
-def blur_maps(params, B, C):
+def blur_maps(params, B, C, B_inf, C_inf):
     """Blur the bleaching and calcium maps between frames (§2.4), in one pass,
     by a discrete Gaussian of ``afterimage_blur`` pixels (exactly that
     variance at any width, so that :func:`blur_for_display` holds for the
-    sub-pixel blurs of coarse displays)."""
+    sub-pixel blurs of coarse displays).
+
+    What is blurred is each map's departure from its equilibrium under the
+    frame, ``B - B_inf`` and ``C - C_inf``: the afterimages (Eqs 7 and 11
+    are written in them), which the paper blurs "to simulate the blurry
+    nature of afterimages". Blurred whole, the maps of a steady scene seen
+    with a steady gaze, which has no afterimage, left their equilibrium at
+    every edge: a ring built up around a 1e6 cd/m2 lamp on a 20 cd/m2 field
+    (display values moved by up to 0.029 in 2 s), where Eqs 4-12 have
+    nothing change.
+    """
     if params.afterimage_blur == 0:
         return B, C
-    both = jnp.moveaxis(jnp.concatenate([B, C], axis=-1), -1, 0)
-    both = separable_filter(both, discrete_gaussian_kernel(params.afterimage_blur))
-    both = jnp.moveaxis(both, 0, -1)
-    return both[..., :3], both[..., 3:]
+    both = jnp.concatenate([B - B_inf, C - C_inf], axis=-1)
+    blurred = separable_filter(
+        jnp.moveaxis(both, -1, 0), discrete_gaussian_kernel(params.afterimage_blur)
+    )
+    blurred = jnp.moveaxis(blurred, 0, -1)
+    return B_inf + blurred[..., :3], C_inf + blurred[..., 3:]
 
 
 #: Frame rate at which the default ``afterimage_blur`` (1 pixel a frame, at
@@ -813,6 +835,8 @@ def _frame(params, state, frame, dt, sample):
         params,
         kinetics.cone_bleaching_step(B, rec.lms, params.b1, params.b2, dt),
         kinetics.calcium_step(C, rec.R, params.c1, params.c2, dt),
+        rec.B_inf,
+        rec.C_inf,
     )
     advanced = seen._replace(
         A=A if params.global_adaptation else seen.A,
