@@ -64,7 +64,7 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
-from common import machine, write_result  # noqa: E402
+from common import machine, median_seconds, write_result  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
@@ -153,6 +153,17 @@ def scipy_loop(data, args, jit=True, groups=1, between=None):
     return np.array(estimates), np.array(ok), np.array(costs), np.array(seconds), evaluations[0]
 
 
+def model_seconds_per_lane(model_args):
+    """Seconds a lane of one vmapped model evaluation over :data:`fitting.LANES`
+    lanes (the width of a solver step), at the paper's constants, in the
+    precision in force."""
+    x0 = np.log([float(getattr(op.Params(), n)) for n in NAMES])
+    X = jnp.tile(jnp.asarray(x0), (fitting.LANES, 1))
+    model = jax.jit(jax.vmap(lambda v: log_threshold(with_log(v), model_args)))
+    seconds = median_seconds(lambda: jax.block_until_ready(model(X)), repeats=21)
+    return seconds / fitting.LANES
+
+
 def timed(fn, times):
     """``fn()``, its wall time appended to ``times``."""
     start = time.perf_counter()
@@ -202,6 +213,7 @@ def main():
             )
 
         fits32 = run32()
+        model32_per_lane = model_seconds_per_lane(args32)
         ours32 = np.stack([np.asarray(fits32.estimate[n], float) for n in NAMES], -1)
         se64 = np.stack([np.asarray(fits.se[n]) for n in NAMES], -1)
         f32_vs_f64 = np.abs(ours32 - ours) / se64
@@ -225,6 +237,7 @@ def main():
     # Each pair's SciPy time for all observers over the jaxadapt call after it.
     pair_speedups = groups_s / group_sizes * args.observers / np.array(jax_times)
     pair_speedups32 = groups_s / group_sizes * args.observers / np.array(f32_times)
+    model_per_lane = model_seconds_per_lane(model_args)
     eager = min(args.eager_peer, args.observers)
     *_, eager_groups_s, eager_evaluations = scipy_loop(
         np.asarray(data[:eager]), model_args, jit=False
@@ -255,6 +268,8 @@ def main():
             "mean_steps": float(np.mean(np.asarray(fits.steps))),
             "max_steps": int(np.max(np.asarray(fits.steps))),
             "lanes": fitting.LANES,
+            "seconds_per_step_and_fit": jax_s / float(np.sum(np.asarray(fits.steps))),
+            "model_seconds_per_lane": model_per_lane,
             "method": "fitting.fit: optimistix LevenbergMarquardt with Nielsen's damping "
             "(and MINPACK's ftol and xtol tests), "
             "forward-mode Jacobians (one linearisation, one tangent per constant), log "
@@ -266,6 +281,8 @@ def main():
             "fits_per_second": args.observers / f32_s,
             "converged_fraction": float(np.mean(np.asarray(fits32.converged))),
             "median_steps": float(np.median(np.asarray(fits32.steps))),
+            "seconds_per_step_and_fit": f32_s / float(np.sum(np.asarray(fits32.steps))),
+            "model_seconds_per_lane": model32_per_lane,
             "max_difference_from_float64_in_standard_errors": float(np.max(f32_vs_f64)),
             "method": "the same call on float32 data and model (float64 off)",
         },

@@ -1,9 +1,11 @@
 """Shared helpers of the benchmark scripts: timing and the machine record."""
 
+import datetime
 import json
 import os
 import platform
 import statistics
+import subprocess
 import time
 from pathlib import Path
 
@@ -61,9 +63,29 @@ def machine(label=None):
     }
 
 
+def _commit():
+    """The checked-out commit, with ``+changes`` if the tree differs from it."""
+    try:
+        git = ["git", "-C", str(Path(__file__).parent)]
+        head = [*git, "rev-parse", "--short", "HEAD"]
+        head = subprocess.run(head, capture_output=True, text=True)
+        changed = [*git, "status", "--porcelain", "--", "..", ":(exclude)results"]
+        dirty = subprocess.run(changed, capture_output=True)
+    except OSError:
+        return None
+    if head.returncode != 0:
+        return None
+    return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
+
+
 def write_result(name, record):
-    """Write ``record`` to ``benchmarks/results/<name>.json`` and return the path."""
+    """Write ``record`` to ``benchmarks/results/<name>.json``, with when it
+    was recorded (UTC) and the code's commit, and return the path."""
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
-    path.write_text(json.dumps(record, indent=2) + "\n")
+    stamp = {
+        "recorded": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "commit": _commit(),
+    }
+    path.write_text(json.dumps({**record, **stamp}, indent=2) + "\n")
     return path
