@@ -660,6 +660,29 @@ def _count_calls(monkeypatch, name):
     return calls
 
 
+def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
+    # t0_cone from 20 frames of the 2000 operator, float32, in a queue of 4
+    # lanes. At the minimum every step is rejected and the damping grows;
+    # the predicted reduction, taken as a difference of two sums, kept 2
+    # roundings of the sum of squares in the lanes' vectorised arithmetic
+    # and never passed the stall test: 256 steps, solved False, where one
+    # lane stopped after 8.
+    from jaxadapt.operators import pattanaik2000 as op
+
+    def model(params, frames):
+        return jnp.log10(op.run(params, frames, 0.02)[1].state.A_cone)
+
+    monkeypatch.setattr(fitting, "LANES", 4)
+    with jax.enable_x64(False):
+        frames = jnp.ones((20, 1, 1, 3), jnp.float32).at[10:].set(100.0)
+        clean = model(op.Params(t0_cone=np.linspace(0.04, 0.12, 70)[35]), frames)
+        noise = np.random.default_rng(0).standard_normal((70, 20))[35].astype(np.float32)
+        data = np.tile(np.asarray(clean) + 0.002 * noise, (5, 1))
+        fits = fitting.fit(model, op.Params(), "t0_cone", data, args=frames)
+    assert np.all(np.asarray(fits.solved)) and np.all(np.asarray(fits.converged))
+    assert np.max(np.asarray(fits.steps)) <= 12
+
+
 def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
     # Two lanes for six datasets: each lane takes the next dataset when its
     # fit stops, and the host hands the queue over two datasets at a time,
