@@ -514,13 +514,23 @@ def _source(args):
         kwargs["duration"] = args.duration
     if args.fps is not None:
         kwargs["fps"] = args.fps
-    source = pipeline.from_scene(SCENES[args.scene or "tunnel"](**kwargs), args.multiplier)
-    if len(source.times) == 0:
-        raise UsageError(
-            f"--duration: expected at least one frame, got {args.duration} s, shorter than "
-            "one frame of the scene"
-        )
-    return source
+    try:
+        scene = SCENES[args.scene or "tunnel"](**kwargs)
+    except ValueError as error:  # named by the scene's argument: name the option
+        name, _, rest = str(error).partition(": ")
+        raise UsageError(f"{_SCENE_OPTIONS.get(name, name)}: {rest}") from None
+    return pipeline.from_scene(scene, args.multiplier)
+
+
+#: The options that set a built-in scene's arguments, by the argument's name
+#: in the scene's errors.
+_SCENE_OPTIONS = {
+    "width": "--size",
+    "height": "--size",
+    "duration": "--duration",
+    "fps": "--fps",
+    "duration, fps": "--duration",
+}
 
 
 def _operator(args, source, fps):

@@ -14,6 +14,7 @@ with a window onto a street at up to 2e4 cd/m2) for the chapter's local
 backgrounds and their halos (§6.4).
 """
 
+import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -23,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import RGB709_TO_XYZ
+from jaxadapt.spatial import check_value
 
 
 class Scene(NamedTuple):
@@ -58,11 +60,33 @@ class Scene(NamedTuple):
     pixels_per_degree: float
 
 
-def _centre_gaze(width, height):
-    def gaze(times):
-        return jnp.tile(jnp.array([(width - 1) / 2.0, (height - 1) / 2.0]), (len(times), 1))
+def _check_frames(width, height, duration, fps):
+    """Refuse a frame size that is not whole pixels >= 1, or a length and
+    rate that are not positive and finite or give no frame (``ValueError``
+    naming the argument)."""
+    for name, value in (("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name}: expected a whole number of pixels >= 1, got {value!r}")
+    check_value("duration", duration, _positive, "a positive, finite length (s)")
+    check_value("fps", fps, _positive, "a positive, finite frame rate (frames/s)")
+    if round(duration * fps) < 1:
+        raise ValueError(
+            f"duration, fps: expected at least one frame, got {duration!r} s at {fps!r} frames/s"
+        )
 
-    return gaze
+
+def _check_luminances(**luminances):
+    """Refuse a luminance (cd/m2) that is negative or not finite."""
+    for name, value in luminances.items():
+        check_value(name, value, _non_negative, "a finite luminance >= 0 (cd/m2)")
+
+
+def _positive(v):
+    return np.isfinite(v) & (v > 0)
+
+
+def _non_negative(v):
+    return np.isfinite(v) & (v >= 0)
 
 
 # -- ColorChecker -------------------------------------------------------------
@@ -73,7 +97,10 @@ def colorchecker_rgb(illuminant="D65"):
 
     Reflectances from colour-science (``ColorChecker N Ohta``), integrated
     against the CIE 1931 observer under ``illuminant``; white here means a
-    perfect diffuser, so the white patch (no. 19) is about 0.9.
+    perfect diffuser, so the white patch (no. 19) is about 0.9
+    (:func:`white_tile`). One patch lies outside BT.709 under D65: cyan
+    (no. 18), whose red is -0.03; it is clipped to 0, which raises the
+    patch's luminance by 4 %.
 
     Returns
     -------
@@ -86,6 +113,13 @@ def colorchecker_rgb(illuminant="D65"):
     XYZ = np.array([colour.sd_to_XYZ(sd, cmfs, sd_illuminant) for sd in patches]) / 100.0
     rgb = XYZ @ np.linalg.inv(RGB709_TO_XYZ).T
     return np.clip(rgb, 0.0, None).reshape(4, 6, 3)
+
+
+@functools.cache
+def white_tile():
+    """Photopic luminance of the ColorChecker's white patch (no. 19)
+    relative to a perfect white diffuser, under D65 (about 0.89)."""
+    return float(colorchecker_rgb()[3, 0] @ RGB709_TO_XYZ[1])
 
 
 def colorchecker_image(width, height, white_luminance, surround=0.2):
@@ -125,15 +159,16 @@ def title_step(
     moonlight_goal, sunlight_goal : float
         Adaptation goals before and after the step, cd/m2.
     """
+    _check_frames(width, height, duration, fps)
+    _check_luminances(moonlight_goal=moonlight_goal, sunlight_goal=sunlight_goal)
     frame_time = 1.0 / fps
     T = int(round(duration * fps))
     times = np.arange(T) * frame_time
     chart = jnp.asarray(colorchecker_image(width, height, 1.0), dtype=jnp.float32)
-    white = colorchecker_rgb()[3, 0] @ RGB709_TO_XYZ[1]
-    scale_moon, scale_sun = 5 * moonlight_goal / white, 5 * sunlight_goal / white
+    scale_moon, scale_sun = 5 * moonlight_goal / white_tile(), 5 * sunlight_goal / white_tile()
 
     def render(t):
-        scale = jnp.where(jnp.asarray(t) > 0.5 * frame_time, scale_sun, scale_moon)
+        scale = jnp.where(jnp.atleast_1d(t) > 0.5 * frame_time, scale_sun, scale_moon)
         return chart[None] * scale[:, None, None, None].astype(chart.dtype)
 
     return Scene(
@@ -141,7 +176,7 @@ def title_step(
         times,
         np.full(T, frame_time),
         render,
-        _centre_gaze(width, height),
+        fixate((width - 1) / 2.0, (height - 1) / 2.0),
         "white_fraction",
         moonlight_goal,
         width / 40.0,
@@ -198,6 +233,10 @@ def tunnel_drive(
     entrance, length : float
         Distance to the tunnel mouth and tunnel length, m.
     """
+    _check_frames(width, height, duration, fps)
+    for name, value in (("speed", speed), ("entrance", entrance), ("length", length)):
+        check_value(name, value, np.isfinite, "a finite distance or speed (m, m/s)")
+    check_value("length", length, lambda v: v > 0, "a positive length (m)")
     T = int(round(duration * fps))
     times = np.arange(T) / fps
     fov = 60.0
@@ -259,18 +298,15 @@ def tunnel_drive(
 
     render = jax.jit(jax.vmap(frame))
 
-    def gaze(times):
-        return jnp.tile(jnp.array([(width - 1) / 2.0, gaze_row]), (len(times), 1))
-
     return Scene(
         "tunnel",
         times,
         np.full(T, 1.0 / fps),
-        lambda t: render(jnp.asarray(t)),
-        gaze,
+        lambda t: render(jnp.atleast_1d(jnp.asarray(t))),
+        fixate((width - 1) / 2.0, gaze_row),
         "foveal",
         None,
-        width / fov,
+        focal * np.pi / 180.0,  # at the centre, where the gaze is: focal length / radian
     )
 
 
@@ -486,7 +522,14 @@ def recorded_gaze(times, points):
     >>> path(np.array([0.5, 1.0, 1.5, 9.0])).tolist()
     [[1.0, 2.0], [1.0, 2.0], [1.0, 2.0], [5.0, 6.0]]
     """
-    times, points = np.asarray(times), np.asarray(points, dtype=np.float64)
+    times, points = np.asarray(times, dtype=np.float64), np.asarray(points, dtype=np.float64)
+    if times.ndim != 1 or times.size == 0 or points.shape != (times.size, 2):
+        raise ValueError(
+            f"times, points: expected N >= 1 sample times (N,) and gaze points (N, 2), got "
+            f"shapes {times.shape} and {points.shape}"
+        )
+    if not (np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)):
+        raise ValueError(f"times: expected finite sample times that increase, got {times}")
     finite = np.all(np.isfinite(points), axis=-1)
     last = np.maximum.accumulate(np.where(finite, np.arange(len(points)), -1))
     points = np.where((last >= 0)[:, None], points[np.maximum(last, 0)], np.nan)
@@ -565,6 +608,10 @@ def flash(
     field_deg : float
         Horizontal field of view of the frame, degrees.
     """
+    _check_frames(width, height, duration, fps)
+    _check_luminances(luminance=luminance)
+    check_value("radius_deg", radius_deg, _positive, "a positive, finite radius (degrees)")
+    check_value("field_deg", field_deg, _positive, "a positive, finite field (degrees)")
     if not (0 <= onset < duration and 1e-6 <= flash_duration < np.inf):
         raise ValueError(
             f"onset, flash_duration: expected onset in [0, {duration!r}) s and a length of at "
@@ -598,6 +645,12 @@ def _afterimage_stimulus(
     ``background`` cd/m2 on the right half, a fixation cross at the centre of
     each; the gaze fixates the left cross for ``fixation`` s, then saccades
     to the right one."""
+    _check_frames(width, height, duration, fps)
+    if width < 2:
+        raise ValueError(f"width: expected at least 2 pixels (stimulus and field), got {width!r}")
+    _check_luminances(background=background)
+    check_value("fixation", fixation, np.isfinite, "a finite time (s)")
+    check_value("field_deg", field_deg, _positive, "a positive, finite field (degrees)")
     half = width // 2
     image = np.full((height, width, 3), float(background))
     image[:, :half] = inducer
@@ -645,9 +698,13 @@ def checkerboard(
     field_deg : float
         Horizontal field of view, degrees.
     """
+    _check_frames(width, height, duration, fps)
+    _check_luminances(white=white, black=black)
+    if isinstance(checks, bool) or not isinstance(checks, (int, np.integer)) or checks < 1:
+        raise ValueError(f"checks: expected a whole number of squares >= 1, got {checks!r}")
     half = width // 2
     y, x = np.mgrid[:height, :half]
-    parity = (x * checks // half + y * checks // height) % 2
+    parity = (x * checks // max(half, 1) + y * checks // height) % 2
     board = np.where(parity[..., None] == 0, float(white), float(black)) * np.ones(3)
     return _afterimage_stimulus(
         "checkerboard", board, width, height, duration, fps, fixation, background, field_deg
@@ -677,6 +734,8 @@ def patches(
     then a saccade to the field, where colour-opponent afterimages appear
     (blue gives yellow, red gives cyan).
     """
+    _check_frames(width, height, duration, fps)
+    _check_luminances(luminance=luminance)
     half = width // 2
     colours = _PATCH_COLOURS / (_PATCH_COLOURS @ RGB709_TO_XYZ[1])[:, None]
     y, x = np.mgrid[:height, :half]
@@ -687,14 +746,18 @@ def patches(
     )
 
 
-def mesopic(width=384, height=256, duration=2.0, fps=30.0, white_luminance=5.5e-2, field_deg=20.0):
+def mesopic(width=384, height=256, duration=2.0, fps=30.0, white=5.5e-2, field_deg=20.0):
     """A ColorChecker at mesopic levels (Jacobs 2015, Fig. 11 and §4.2).
 
-    The chart of :func:`colorchecker_image`, scaled so that a perfect white
-    diffuser has ``white_luminance`` cd/m2 (5.5e-2, the standard of the
-    paper's mesopic experiment, at the white tile), fixated at its centre.
+    The chart of :func:`colorchecker_image`, lit so that its white patch
+    (no. 19) has ``white`` cd/m2: 5.5e-2, the standard of the paper's
+    mesopic experiment, "at the white tile" (a perfect white diffuser is
+    then ``white / 0.89``, :func:`white_tile`). Fixated at its centre.
     """
-    image = colorchecker_image(width, height, white_luminance)
+    _check_frames(width, height, duration, fps)
+    _check_luminances(white=white)
+    check_value("field_deg", field_deg, _positive, "a positive, finite field (degrees)")
+    image = colorchecker_image(width, height, white / white_tile())
     return _uniform_scene(
         "mesopic",
         image,

@@ -83,6 +83,8 @@ def gaussian_kernel(sigma, truncate=4.0):
         Taps summing to one, ``r = ceil(truncate sigma)``.
     """
     _check_sigma(sigma)
+    if not (np.isfinite(truncate) and truncate >= 0):
+        raise ValueError(f"truncate: expected a finite number >= 0 of widths, got {truncate!r}")
     r = int(np.ceil(truncate * sigma))
     x = np.arange(-r, r + 1, dtype=np.float64)
     taps = np.exp(-0.5 * (x / sigma) ** 2)
@@ -155,17 +157,17 @@ def separable_filter(image, taps):
     the fast form (the per-axis one cost the 2015 operator a third of its
     frame rate on an H100), so other platforms keep it.
 
-    Kernels of more than :data:`LONG_KERNEL` taps go through products with
-    a banded matrix instead, on every platform (:func:`_filter_by_blocks`):
+    Kernels of more than :data:`LONG_KERNEL` taps go through matrix
+    products instead, on every platform (:func:`_filter_by_products`):
     a sum of shifted slices costs a product a tap, and XLA compiles one
     slice a tap (a Gaussian background of 1,000 pixels, 5,657 taps,
     compiled for minutes).
     """
-    return _separable_filter(image, tuple(float(w) for w in np.asarray(taps)))
+    return _separable_filter(as_image(image), tuple(float(w) for w in np.asarray(taps)))
 
 
-#: Taps above which :func:`separable_filter` filters by blocks
-#: (:func:`_filter_by_blocks`): one slice a tap took 530 ms for a 1920x1080
+#: Taps above which :func:`separable_filter` filters by matrix products
+#: (:func:`_filter_by_products`): one slice a tap took 530 ms for a 1920x1080
 #: float32 plane at 257 taps (2 cores), where XLA's fusion of the slices
 #: changes. The blocks are faster on the CPU from about 100 taps (a
 #: 1920x1080 RGB frame: 84 against 143 ms at 121 taps, but 70 against 62 at
@@ -181,7 +183,7 @@ def _separable_filter(image, taps):
     would otherwise be dispatched, and compiled, one op at a time."""
     taps = np.asarray(taps)
     if taps.shape[0] > LONG_KERNEL:
-        return _filter_by_blocks(image, taps).astype(image.dtype)
+        return _filter_by_products(image, taps).astype(image.dtype)
     out = jax.lax.platform_dependent(
         image,
         cpu=lambda image: _filter_per_axis(image, taps),
@@ -190,8 +192,55 @@ def _separable_filter(image, taps):
     return out.astype(image.dtype)
 
 
-def _filter_by_blocks(image, taps):
-    """:func:`separable_filter` one axis at a time, each as products of
+def _filter_by_products(image, taps):
+    """:func:`separable_filter` one axis at a time, each pass a matrix product.
+
+    A pass over a mirror-extended axis of length ``n`` is linear: the
+    ``n x n`` matrix ``M_kj`` of :func:`_folded_matrix`. When the axis is
+    longer than the kernel reaches (``n > 4 r``, ``2 r + 1`` taps), most of
+    that matrix is zero, and the pass goes by blocks instead
+    (:func:`_pass_by_blocks`): ``4 r + 1`` products a sample against ``n``,
+    whichever is fewer. (By blocks alone, a Gaussian of standard deviation
+    600 pixels on an 8x8 image took 9.7 s and 1.3 GB for a band of 7,200 x
+    4,800 taps.) Every output is the sum of its own window's terms (the
+    matrix is exactly 0 outside it), so float32 rounding stays relative to
+    what the window holds. The FFT these replace spread the rounding of a
+    line's brightest value over the whole line: the dark side of a 1e8 |
+    1e-3 cd/m2 edge came out up to 2e4 times its value, negative or
+    positive, and the floored background made those pixels white or black;
+    here it is within 7e-5 of float64. The blocks are also faster than the
+    FFT for a 1920x1080 float32 plane on 2 cores: 28 against 64 ms at 241
+    taps, 50 against 73 at 561 (129 against 57 at 1,201).
+    ``precision="highest"``: full float32 products on a GPU too, whose
+    default for a float32 matrix product may round its inputs (TF32).
+    """
+    r = (taps.shape[0] - 1) // 2
+    for axis in (-2, -1):
+        line = jnp.moveaxis(image, axis, -1)
+        n = line.shape[-1]
+        if n > 4 * r:
+            out = _pass_by_blocks(line, taps)
+        else:
+            M = _folded_matrix(n, taps).astype(line.dtype)
+            out = jnp.einsum("...k,kj->...j", line, M, precision="highest")
+        image = jnp.moveaxis(out, -1, axis)
+    return image
+
+
+def _folded_matrix(n, taps):
+    """The ``n x n`` matrix of one pass of ``taps`` over a mirror-extended
+    axis of length ``n``: ``out_j = sum_k x_k M_kj``, ``M_kj`` the sum of
+    the taps ``h_i`` whose extended sample ``j + i - r`` mirrors to ``k``
+    (:func:`_reflect_indices`)."""
+    r = (taps.shape[0] - 1) // 2
+    source = _reflect_indices(n, r)[np.arange(n)[:, None] + np.arange(2 * r + 1)]
+    M = np.zeros((n, n))
+    np.add.at(M, (source, np.arange(n)[:, None]), taps)
+    return M
+
+
+def _pass_by_blocks(line, taps):
+    """One pass of ``taps`` along the last axis of ``line``, as products of
     blocks of the mirror-extended axis with one banded matrix of the taps.
 
     With ``2 r + 1`` taps ``h``, output samples ``b s ... b s + s - 1``
@@ -199,32 +248,23 @@ def _filter_by_blocks(image, taps):
     on: they are that window times the ``(s + 2 r) x s`` matrix ``T_kj =
     h_(k - j)`` (0 off the band), one matrix product for all blocks, ``4 r
     + 1`` products a sample whatever the axis' length.
-    Every output is the sum of its own window's terms, so float32 rounding
-    stays relative to what the window holds. The FFT this replaces spread
-    the rounding of a line's brightest value over the whole line: the dark
-    side of a 1e8 | 1e-3 cd/m2 edge came out up to 2e4 times its value,
-    negative or positive, and the floored background made those pixels
-    white or black; here it is within 7e-5 of float64. It is also the
-    faster of the two for a 1920x1080 float32 plane on 2 cores: 28 against
-    64 ms at 241 taps, 50 against 73 at 561 (129 against 57 at 1,201).
-    ``precision="highest"``: full float32 products on a GPU too, whose
-    default for a float32 matrix product may round its inputs (TF32).
     """
     r = (taps.shape[0] - 1) // 2
     s = 2 * r + 1
     k = np.arange(s + 2 * r)[:, None] - np.arange(s)[None, :]
     band = np.where((k >= 0) & (k <= 2 * r), taps[np.clip(k, 0, 2 * r)], 0.0)
-    for axis in (-2, -1):
-        n = image.shape[axis]
-        blocks = -(-n // s)
-        extended = _reflect_indices(n, r)  # n + 2 r samples
-        extended = np.concatenate([extended, np.full(blocks * s - n, extended[-1])])
-        windows = np.arange(blocks)[:, None] * s + np.arange(s + 2 * r)[None, :]
-        line = jnp.take(jnp.moveaxis(image, axis, -1), extended[windows], axis=-1)
-        out = jnp.einsum("...bk,kj->...bj", line, band.astype(image.dtype), precision="highest")
-        out = out.reshape(out.shape[:-2] + (blocks * s,))[..., :n]
-        image = jnp.moveaxis(out, -1, axis)
-    return image
+    n = line.shape[-1]
+    blocks = -(-n // s)
+    extended = _reflect_indices(n, r)  # n + 2 r samples
+    extended = np.concatenate([extended, np.full(blocks * s - n, extended[-1])])
+    windows = np.arange(blocks)[:, None] * s + np.arange(s + 2 * r)[None, :]
+    out = jnp.einsum(
+        "...bk,kj->...bj",
+        jnp.take(line, extended[windows], axis=-1),
+        band.astype(line.dtype),
+        precision="highest",
+    )
+    return out.reshape(out.shape[:-2] + (blocks * s,))[..., :n]
 
 
 def _filter_per_axis(image, taps):
@@ -312,9 +352,16 @@ def _check_radius(radius, name="radius"):
     return int(radius)
 
 
-def _check_image(image, name="image"):
-    if image.ndim < 2:
-        raise ValueError(f"{name}: expected an array of shape (..., H, W), got shape {image.shape}")
+def as_image(image, name="image"):
+    """``image`` as a floating-point array, after checking its shape ``(..., H,
+    W)`` (``H, W >= 1``; ``ValueError`` naming it otherwise). An integer image
+    is promoted: a filter computing in its dtype would truncate the averages."""
+    image = jnp.asarray(image)
+    if image.ndim < 2 or 0 in image.shape[-2:]:
+        raise ValueError(
+            f"{name}: expected an array of shape (..., H, W), H, W >= 1, got shape {image.shape}"
+        )
+    return image.astype(jnp.result_type(image.dtype, float))
 
 
 # -- box filters and low-pass stacks ------------------------------------------------
@@ -402,12 +449,13 @@ def box_filter(image, radius):
     >>> float(box_filter(jnp.arange(9.0).reshape(3, 3), 1)[1, 1])
     4.0
     """
-    _check_image(image)
+    image = as_image(image)
     r = _check_radius(radius)
     w = 2 * r + 1
-    padded = _reflect_pad(image, r)
-    sums = _window_sums(_window_sums(padded, w, image.ndim - 2), w, image.ndim - 1)
-    return sums / jnp.asarray(w * w, image.dtype)
+    for axis in (image.ndim - 2, image.ndim - 1):  # one axis extended at a time
+        extended = jnp.take(image, _reflect_indices(image.shape[axis], r), axis=axis)
+        image = _window_sums(extended, w, axis)
+    return image / jnp.asarray(w * w, image.dtype)
 
 
 def iterated_box_filter(image, radius, passes=3):
@@ -462,6 +510,8 @@ def lowpass_stack(image, radii, passes=3):
     -------
     array, shape (..., len(radii), H, W)
     """
+    if len(radii) == 0:
+        raise ValueError("radii: expected at least one box half-width (pixels), got none")
     return jnp.stack([iterated_box_filter(image, r, passes) for r in radii], axis=-3)
 
 
@@ -500,22 +550,23 @@ def gaussian_window(s, truncate=2.0):
 
 
 def disc_window(s):
-    """Circular box weights: 1 for ``||p - i|| <= s``, 0 elsewhere (Pattanaik and Yee).
+    """Circular box weights of Eq 6.4: 1 for ``||p - i|| < s``, 0 elsewhere
+    (Pattanaik and Yee's spatial weight). ``s <= 1`` is the pixel itself.
 
     Parameters
     ----------
     s : float
-        Radius, pixels (static), ``>= 0``.
+        Radius, pixels (static), ``> 0``.
 
     Returns
     -------
-    numpy array, shape (2 R + 1, 2 R + 1), ``R = floor(s)``
+    numpy array, shape (2 R + 1, 2 R + 1), ``R = ceil(s) - 1``
     """
-    if not (np.isfinite(s) and s >= 0):
-        raise ValueError(f"scale: expected a non-negative radius in pixels, got {s!r}")
-    R = int(np.floor(s))
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"scale: expected a positive radius in pixels, got {s!r}")
+    R = int(np.ceil(s)) - 1
     d2 = np.add.outer(np.arange(-R, R + 1) ** 2, np.arange(-R, R + 1) ** 2)
-    return (d2 <= s * s).astype(np.float64)
+    return (d2 < s * s).astype(np.float64)
 
 
 #: Spatial weights ``w`` of Eq 6.5 by name: functions of the size parameter ``s``.
@@ -540,7 +591,9 @@ def bilateral_filter(
         Size parameter ``s`` of the spatial weight, pixels (static): see
         :func:`gaussian_window` and :func:`disc_window`.
     sigma_r : float or array
-        Width of the intensity weight, in units of the guide, ``> 0``.
+        Width of the intensity weight, in units of the guide, ``> 0``: one,
+        or an array that broadcasts to the image's shape (e.g. one a frame,
+        ``(T, 1, 1)``).
     spatial : str
         ``"gaussian"`` (Durand and Dorsey) or ``"disc"`` (Pattanaik and Yee).
     range_kernel : str
@@ -570,7 +623,7 @@ def bilateral_filter(
     >>> round(float(out[0, 3]), 6), round(float(out[0, 4]), 6)
     (0.0, 1.0)
     """
-    _check_image(image)
+    image = as_image(image)
     for name, value, options in (
         ("spatial", spatial, SPATIAL_WINDOWS),
         ("range_kernel", range_kernel, RANGE_KERNELS),
@@ -578,16 +631,23 @@ def bilateral_filter(
         if value not in options:
             raise ValueError(f"{name}: expected one of {tuple(options)}, got {value!r}")
     check_value("sigma_r", sigma_r, lambda v: v > 0, "a positive width")
-    sigma_r = jnp.asarray(sigma_r, image.dtype)
-    guide = image if guide is None else guide
+    guide = image if guide is None else as_image(guide, "guide")
     if guide.shape != image.shape:
         raise ValueError(f"guide: expected the shape of image {image.shape}, got {guide.shape}")
+    shape = image.shape
+    sigma_r = jnp.asarray(sigma_r, image.dtype)
+    if np.ndim(sigma_r) > len(shape) or any(
+        a not in (1, b) for a, b in zip(sigma_r.shape[::-1], shape[::-1], strict=False)
+    ):
+        raise ValueError(
+            f"sigma_r: expected a shape that broadcasts to {shape}, got {sigma_r.shape}"
+        )
     window = SPATIAL_WINDOWS[spatial](scale)
     g = RANGE_KERNELS[range_kernel]
     R = window.shape[0] // 2
-    shape = image.shape
     values = image.reshape((-1,) + shape[-2:])
     guide = guide.reshape(values.shape).astype(image.dtype)
+    sigma_r = jnp.broadcast_to(sigma_r, shape).reshape(values.shape)
     padded_values, padded_guide = _reflect_pad(values, R), _reflect_pad(guide, R)
     rows, cols = np.nonzero(window)
     taps = (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(window[rows, cols], image.dtype))

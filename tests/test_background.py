@@ -106,7 +106,8 @@ def test_windows_follow_the_chapter():
     w = spatial.gaussian_window(2.0)
     assert w[w.shape[0] // 2, w.shape[0] // 2 + 1] == pytest.approx(np.exp(-1 / 4))
     disc = spatial.disc_window(2.0)
-    assert disc.shape == (5, 5) and disc.sum() == 13  # |d| <= 2
+    assert disc.shape == (3, 3) and disc.sum() == 9  # ||p - i|| < 2
+    assert spatial.disc_window(2.5).sum() == 21 and spatial.disc_window(1.0).sum() == 1
 
 
 # -- the estimators ---------------------------------------------------------------

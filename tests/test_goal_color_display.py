@@ -83,7 +83,7 @@ def test_the_forms_of_the_separable_filter_agree():
     # (separable_filter's notes): the same filter, kernels longer than the
     # image and one-pixel axes included.
     rng = np.random.default_rng(3)
-    forms = (spatial._filter_per_axis, spatial._filter_both_axes, spatial._filter_by_blocks)
+    forms = (spatial._filter_per_axis, spatial._filter_both_axes, spatial._filter_by_products)
     for shape, sigma in (((3, 20, 30), 1.5), ((2, 5, 7), 10.0), ((1, 9), 0.75), ((4, 1, 6), 2.0)):
         x = jnp.asarray(rng.uniform(size=shape))
         taps = spatial.gaussian_kernel(sigma)
@@ -92,25 +92,79 @@ def test_the_forms_of_the_separable_filter_agree():
             np.testing.assert_allclose(other, per_axis, rtol=1e-12)
 
 
-def test_long_kernels_go_by_blocks_and_match_scipy():
-    # 1,001 taps (sigma 125): one slice a tap would take minutes to compile.
+@pytest.mark.parametrize(
+    "shape, sigma",
+    [
+        ((2, 40, 1000), 60.0),  # 481 taps: blocks along 1,000 pixels, the folded matrix along 40
+        ((8, 8), 600.0),  # 4,801 taps folded: by blocks, 9.7 s and 1.3 GB
+    ],
+)
+def test_long_kernels_go_by_products_and_match_scipy(shape, sigma):
+    # One slice a tap would take minutes to compile (_filter_by_products).
     from scipy.ndimage import gaussian_filter
 
-    taps = spatial.gaussian_kernel(125.0)
-    assert taps.size > spatial.LONG_KERNEL
-    x = np.random.default_rng(4).lognormal(size=(2, 40, 300))
-    expected = np.stack([gaussian_filter(a, 125.0, mode="mirror", truncate=4.0) for a in x])
-    np.testing.assert_allclose(spatial.gaussian_blur(jnp.asarray(x), 125.0), expected, rtol=1e-12)
-    x32 = jnp.asarray(x, jnp.float32)
-    blurred = spatial.gaussian_blur(x32, 125.0)
+    assert spatial.gaussian_kernel(sigma).size > spatial.LONG_KERNEL
+    x = np.random.default_rng(4).lognormal(size=shape).reshape((-1, *shape[-2:]))
+    expected = np.stack([gaussian_filter(a, sigma, mode="mirror", truncate=4.0) for a in x])
+    expected = expected.reshape(shape)
+    x = x.reshape(shape)
+    np.testing.assert_allclose(spatial.gaussian_blur(jnp.asarray(x), sigma), expected, rtol=1e-12)
+    blurred = spatial.gaussian_blur(jnp.asarray(x, jnp.float32), sigma)
     assert blurred.dtype == jnp.float32
     np.testing.assert_allclose(blurred, expected, rtol=1e-5)
+
+
+def test_integer_images_are_filtered_as_numbers():
+    # The filters computed in the image's dtype: a blur of uint8 came back
+    # truncated to whole numbers, the bilateral filter failed inside its scan,
+    # and a luminance of integer RGB was 0 (its weights rounded to 0).
+    u = (np.arange(48) % 2 * 255).astype(np.uint8).reshape(6, 8)
+    f = u.astype(float)
+    for filt in (
+        lambda x: spatial.gaussian_blur(x, 1.0),
+        lambda x: spatial.box_filter(x, 1),
+        lambda x: spatial.bilateral_filter(x, 2.0, 50.0),
+    ):
+        np.testing.assert_allclose(filt(u), filt(f), rtol=1e-12)
+    rgb = np.array([200, 100, 50], np.uint8)
+    np.testing.assert_allclose(color.photopic_luminance(rgb), rgb @ color.W_PHOTOPIC)
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: color.photopic_luminance(np.ones((4, 5))), "rgb: .* shape \\(4, 5\\)"),
+        (lambda: color.transform(np.ones((2, 4)), color.RGB_TO_LMS), "rgb: .* shape \\(2, 4\\)"),
+        (lambda: spatial.gaussian_blur(np.ones(5), 1.0), "image: .* shape \\(5,\\)"),
+        (lambda: spatial.box_filter(np.ones((0, 5)), 1), "image: .*H, W >= 1.*\\(0, 5\\)"),
+        (lambda: spatial.bilateral_filter(np.ones((3, 0)), 2.0, 1.0), "image: .*\\(3, 0\\)"),
+        (lambda: spatial.gaussian_kernel(1.0, truncate=-1), "truncate: expected"),
+        (lambda: spatial.lowpass_stack(np.ones((4, 4)), []), "radii: expected"),
+        (
+            lambda: spatial.bilateral_filter(np.ones((2, 3, 4, 4)), 2.0, np.ones(5)),
+            "sigma_r: .*broadcasts to \\(2, 3, 4, 4\\), got \\(5,\\)",
+        ),
+    ],
+)
+def test_bad_images_and_filter_arguments_are_named(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+def test_an_intensity_width_per_frame_filters_each_frame_with_its_own():
+    # sigma_r of shape (3, 1, 1) against images (2, 3, H, W): it was not
+    # reshaped with the image's batch axes and failed to broadcast.
+    img = np.random.default_rng(8).random((2, 3, 7, 9))
+    widths = np.array([0.1, 0.2, 0.3])
+    got = spatial.bilateral_filter(jnp.asarray(img), 2.0, widths[:, None, None])
+    for i, j in np.ndindex(2, 3):
+        np.testing.assert_allclose(got[i, j], spatial.bilateral_filter(img[i, j], 2.0, widths[j]))
 
 
 def test_long_kernels_keep_the_dark_side_of_an_hdr_edge_in_float32():
     # 1e8 | 1e-3 cd/m2: an FFT spread the rounding of 1e8 over the whole
     # line (the dark side off by up to 2e4 times its value); the blocks sum
-    # each window's own terms (_filter_by_blocks).
+    # each window's own terms (_filter_by_products).
     from scipy.ndimage import gaussian_filter
 
     x = np.where(np.arange(1200) < 200, 1e8, 1e-3) * np.ones((8, 1))

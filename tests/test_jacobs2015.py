@@ -627,9 +627,6 @@ def test_jacobs_scenes_are_registered_and_calibrated():
     frames = np.asarray(flash.render(flash.times))
     lit = frames.max(axis=(1, 2, 3)) > 0
     assert frames.max() == 1e7 and np.sum(flash.dt * lit) == pytest.approx(0.125, rel=1e-12)
-    white = scenes.colorchecker_rgb()[3, 0] @ np.array([0.2126, 0.7152, 0.0722])
-    mesopic = scenes.mesopic(width=60, height=40)
-    assert float(np.asarray(mesopic.render([0.0])).max()) <= 5.5e-2 * white * 1.01
 
 
 @pytest.mark.parametrize("length", [0.125, 0.001])

@@ -25,3 +25,54 @@ def test_interior_with_window_is_calibrated_in_cd_m2(size):
     np.testing.assert_allclose([L[shaded].min(), L[shaded].max()], [1200.0, 1500.0], rtol=1e-5)
     np.testing.assert_allclose([L[sunlit].min(), L[sunlit].max()], [1.6e4, 2e4], rtol=1e-5)
     assert outside.max() == pytest.approx(2e4, rel=1e-5)
+
+
+def test_the_mesopic_chart_has_the_papers_luminance_at_its_white_tile():
+    # Jacobs 2015 §4.2: 5.5e-2 cd/m2 "at the white tile". It was put on a
+    # perfect white diffuser, the tile (reflecting 0.89 of it) 11 % darker.
+    frame = np.asarray(scenes.mesopic(width=96, height=64, duration=0.1).render(0.0))[0]
+    assert float(photopic_luminance(frame).max()) == pytest.approx(5.5e-2, rel=1e-5)
+    assert scenes.white_tile() == pytest.approx(0.887, abs=0.005)
+
+
+@pytest.mark.parametrize("name", sorted(scenes.SCENES))
+def test_every_scene_renders_one_time_as_a_batch_of_one(name):
+    # title-step and tunnel failed on a scalar time; the others accepted it.
+    scene = scenes.SCENES[name](width=32, height=16, duration=0.5)
+    frames = np.asarray(scene.render(scene.times[0]))
+    assert frames.shape == (1, 16, 32, 3) and np.all(np.isfinite(frames))
+    assert np.asarray(scene.gaze(scene.times[0])).shape == (1, 2)
+
+
+@pytest.mark.parametrize(
+    "make, name",
+    [
+        (lambda: scenes.tunnel_drive(-4, 8), "width"),
+        (lambda: scenes.flash(fps=0), "fps"),
+        (lambda: scenes.title_step(duration=-1), "duration"),
+        (lambda: scenes.title_step(duration=0.001), "duration, fps"),
+        (lambda: scenes.title_step(sunlight_goal=-5), "sunlight_goal"),
+        (lambda: scenes.flash(luminance=float("nan")), "luminance"),
+        (lambda: scenes.checkerboard(white=-1), "white"),
+        (lambda: scenes.checkerboard(checks=0), "checks"),
+        (lambda: scenes.mesopic(white=-1), "white"),
+        (lambda: scenes.tunnel_drive(speed=float("nan")), "speed"),
+        (lambda: scenes.recorded_gaze([2.0, 0.0, 1.0], np.zeros((3, 2))), "times"),
+        (lambda: scenes.recorded_gaze([0.0, 1.0, 2.0], [1.0, 2.0, 3.0]), "times, points"),
+        (lambda: scenes.recorded_gaze([], np.zeros((0, 2))), "times, points"),
+    ],
+)
+def test_bad_scene_arguments_are_named(make, name):
+    # Each ran: NaN or negative frames, a plain board, a frame of width 0,
+    # a ZeroDivisionError, or a gaze read from unsorted samples.
+    with pytest.raises(ValueError, match=f"^{name}: expected"):
+        make()
+
+
+def test_the_tunnel_fovea_is_a_degree_at_the_centre_of_the_view():
+    # A pinhole of 60 degrees: pixels per degree at the centre are the focal
+    # length per radian, not the width over the field (10 % more).
+    width = 480
+    scene = scenes.tunnel_drive(width, 270, duration=0.1)
+    focal = 0.5 * width / np.tan(np.radians(30.0))
+    assert scene.pixels_per_degree == pytest.approx(focal * np.tan(np.radians(0.5)) * 2, rel=1e-4)

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.spatial import (
+    as_image,
     bilateral_filter,
     box_filter,
     check_value,
@@ -147,15 +148,6 @@ GOALS = ("log_average", "white_fraction", "foveal")
 # -- background luminance, image -> image (§6.4) ---------------------------------
 
 
-def _luminance(L):
-    """``L`` checked for its shape, as floats (integer luminance is promoted:
-    a filter computing in its dtype would truncate the averages)."""
-    L = jnp.asarray(L)
-    if L.ndim < 2:
-        raise ValueError(f"L: expected a luminance image of shape (..., H, W), got shape {L.shape}")
-    return L.astype(jnp.result_type(L.dtype, float))
-
-
 def check_scale(scale, least=0.0, name="scale"):
     """Refuse a size ``scale`` (pixels) that is not a finite number above
     0, or ``least`` (the boxes: at least 1 pixel)."""
@@ -227,7 +219,7 @@ def global_background(L, floor=LUMINANCE_FLOOR):
     >>> global_background(jnp.array([[1.0, 100.0]])).tolist()  # doctest: +ELLIPSIS
     [[10.0..., 10.0...]]
     """
-    L = _luminance(L)
+    L = as_image(L, "L")
     return jnp.broadcast_to(log_average(L, floor)[..., None, None], L.shape)
 
 
@@ -245,7 +237,7 @@ def arithmetic_background(L):
     array, shape (..., H, W)
         Background, cd/m2, constant over each image.
     """
-    L = _luminance(L)
+    L = as_image(L, "L")
     return jnp.broadcast_to(arithmetic_average(L)[..., None, None], L.shape)
 
 
@@ -268,7 +260,7 @@ def box_background(L, scale=8.0):
     array, shape (..., H, W)
         Background, cd/m2.
     """
-    return box_filter(_luminance(L), box_radius(scale))
+    return box_filter(as_image(L, "L"), box_radius(scale))
 
 
 @eqx.filter_jit
@@ -288,7 +280,7 @@ def gaussian_background(L, scale=8.0):
     array, shape (..., H, W)
         Background, cd/m2.
     """
-    L = _luminance(L)
+    L = as_image(L, "L")
     check_scale(scale)
     return gaussian_blur(L, scale / np.sqrt(2.0))
 
@@ -343,7 +335,7 @@ def bilateral_background(L, scale=4.0, sigma_r=None, kind="durand-dorsey", floor
     The Gaussian weight decays faster than any exponential, so Durand and
     Dorsey's 0.4 is safe.
     """
-    L = _luminance(L)
+    L = as_image(L, "L")
     if kind not in BILATERAL_KINDS:
         raise ValueError(f"kind: expected one of {tuple(BILATERAL_KINDS)}, got {kind!r}")
     spatial, range_kernel, default_sigma_r = BILATERAL_KINDS[kind]
@@ -425,7 +417,7 @@ def adaptive_background(L, scale=1.0, levels=8, tolerance=0.05, floor=LUMINANCE_
     sizes and a relative tolerance (a Weber-like criterion, since the
     visual system is log-linear).
     """
-    L = _luminance(L)
+    L = as_image(L, "L")
     check_value("tolerance", tolerance, lambda v: v > 0, "a positive relative change")
     stack = jnp.maximum(lowpass_stack(L, octave_radii(scale, levels)), floor)
     change = jnp.abs(stack[..., 1:, :, :] - stack[..., :-1, :, :]) / stack[..., :-1, :, :]
@@ -460,7 +452,7 @@ def multiscale_background(L, scale=1.0, levels=8, floor=LUMINANCE_FLOOR):
     array, shape (..., H, W)
         Background, cd/m2.
     """
-    L = _luminance(L)
+    L = as_image(L, "L")
     stack = lowpass_stack(L, octave_radii(scale, levels))
     return jnp.exp(jnp.mean(jnp.log(jnp.maximum(stack, floor)), axis=-3))
 

@@ -80,7 +80,7 @@ import numpy as np
 from jax.scipy.special import ndtr
 
 from jaxadapt import scenes
-from jaxadapt.color import W_PHOTOPIC, photopic_luminance
+from jaxadapt.color import photopic_luminance
 from jaxadapt.io import atomic_path
 from jaxadapt.operators import jacobs2015
 from jaxadapt.operators.goal import LUMINANCE_FLOOR
@@ -447,12 +447,8 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
     Displays
     """
     _check_conditions(protocol)
-    white_tile = float(scenes.colorchecker_rgb()[3, 0] @ W_PHOTOPIC)
-    whites = np.asarray((*protocol.tests, protocol.standard)) / white_tile
-    charts = [
-        scenes.mesopic(width, height, protocol.presentation_s, fps, white_luminance=w)
-        for w in whites
-    ]
+    whites = (*protocol.tests, protocol.standard)
+    charts = [scenes.mesopic(width, height, protocol.presentation_s, fps, white=w) for w in whites]
     times = charts[0].times
     frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
     gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
