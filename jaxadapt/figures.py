@@ -28,6 +28,8 @@ def curve_frames(diag, count=8):
     step on the title page, a tunnel's mouth) gets curves of its own, and a
     steady sequence gets them evenly in time."""
     t = np.asarray(diag["t"], float)
+    if t.size == 0:
+        raise ValueError("diag: expected at least one frame, got none")
     log_A = [np.log10(np.maximum(np.asarray(diag[k], float), 1e-30)) for k in ("A_rod", "A_cone")]
     change = np.concatenate([[0.0], np.cumsum(sum(np.abs(np.diff(a)) for a in log_A))])
     parts = [p / p[-1] for p in (t - t[0], change) if p[-1] > 0]
@@ -73,6 +75,14 @@ def plot_adaptation(path, diag, title):
 
 def contact_sheet(frames, columns=4):
     """Tile uint8 frames ``(K, H, W, 3)`` into one image, with white gutters."""
+    frames = np.asarray(frames)
+    if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3 or not len(frames):
+        raise ValueError(
+            f"frames: expected uint8 frames (K, H, W, 3), K >= 1, got {frames.dtype} of shape "
+            f"{frames.shape}"
+        )
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
+        raise ValueError(f"columns: expected a whole number >= 1, got {columns!r}")
     K, H, W, _ = frames.shape
     rows = -(-K // columns)
     sheet = np.full((rows * (H + 4) + 4, columns * (W + 4) + 4, 3), 255, np.uint8)
@@ -93,6 +103,8 @@ def plot_columns(path, table, title):
     """
     t = table["t"]
     columns = [name for name, column in table.items() if name != "t" and column.ndim == 1]
+    if not columns:
+        raise ValueError(f"table: expected a column besides t, got {list(table)}")
     ncols = min(4, len(columns))
     nrows = -(-len(columns) // ncols)
     fig = Figure(figsize=(3.6 * ncols, 2.6 * nrows + 0.5))

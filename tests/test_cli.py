@@ -712,3 +712,22 @@ def test_curves_are_drawn_where_adaptation_changes():
     np.testing.assert_array_equal(steady, np.linspace(0, 133, 8).round())
     one = {"t": t[:1], "A_rod": A[:1], "A_cone": A[:1]}
     np.testing.assert_array_equal(figures.curve_frames(one), [0])
+
+
+@pytest.mark.parametrize(
+    "name, args, message",
+    [
+        ("contact_sheet", (np.full((2, 4, 4, 3), 0.8),), "frames: expected uint8"),
+        ("contact_sheet", (np.zeros((2, 4, 4), np.uint8),), "frames: expected uint8"),
+        ("contact_sheet", (np.zeros((2, 4, 4, 3), np.uint8), 0), "columns: expected"),
+        ("curve_frames", ({"t": [], "A_rod": [], "A_cone": []},), "diag: expected"),
+        ("plot_columns", ("x.png", {"t": np.zeros(3)}, ""), "table: expected"),
+    ],
+)
+def test_figures_name_what_they_cannot_draw(name, args, message):
+    # Floats in [0, 1] were drawn black, a 3-axis stack failed to unpack,
+    # and no frame or no column failed with an IndexError or a division by 0.
+    from jaxadapt import figures
+
+    with pytest.raises(ValueError, match=message):
+        getattr(figures, name)(*args)
