@@ -1,5 +1,3 @@
-import sys
+from jaxadapt.cli import run
 
-from jaxadapt.cli import main
-
-sys.exit(main())
+run()

@@ -13,6 +13,7 @@ such a signal.
 import argparse
 import contextlib
 import csv
+import os
 import re
 import shutil
 import signal
@@ -311,11 +312,11 @@ def build_parser():
         default=None,
         help="condition the others are compared with (default: control, if the table has it)",
     )
-    fit.add_argument("--seed", type=_seed, default=0, help="seed of the bootstrap (default 0)")
+    fit.add_argument("--seed", type=_seed, default=None, help="seed of the bootstrap (default 0)")
     fit.add_argument(
         "--ranksum",
         choices=("auto", "exact", "asymptotic"),
-        default="auto",
+        default=None,
         help="where the rank-sum test's p comes from: the exact null distribution, the "
         "normal approximation, or auto (default: exact when the smaller group has at most "
         "8 PSEs and none are tied, as SciPy's mannwhitneyu; the paper's p of its two groups "
@@ -696,13 +697,14 @@ def psychometric_fit(args, console):
     import jax
 
     from jaxadapt import figures
-    from jaxadapt.psychophysics import fit as psyfit
-    from jaxadapt.psychophysics import trials
+    from jaxadapt.psychophysics import stats, trials
 
     if args.resamples < 0 or args.resamples == 1:
         raise UsageError(
             f"--resamples: expected 0 (a Wald interval) or at least 2, got {args.resamples}"
         )
+    if args.seed is not None and args.resamples == 0:
+        raise UsageError("--seed: seeds the bootstrap, which --resamples 0 leaves out")
     trial_table = trials.read_trials(args.trials)
     conditions = list(dict.fromkeys(trial_table.condition))
     if args.control is not None and args.control not in conditions:
@@ -712,36 +714,41 @@ def psychometric_fit(args, console):
         )
     control = args.control or "control"
     groups = trials.group_trials(trial_table)
-    # In float64, as statsmodels and MATLAB fit: in float32 the log-likelihood
-    # of a few thousand trials a level is off by 0.01 (binomial terms that
-    # cancel), and its fits stop at slopes whose rounding matters; the group
-    # test's normal tail 2 Phi(-|z|) is 0 in float32 from z = 13.
-    with jax.enable_x64(True):
-        table = trials.fit_groups(groups, key=jax.random.key(args.seed), n_resamples=args.resamples)
-        rows = _group_tests(table, control, args.ranksum)
-    out = args.out
-    # Data that place no PSE (every response the same, one level, or no
-    # slope): said. (Under separation the PSE lies between two levels; the
-    # slope is the prior's, and the flags say so.)
-    no_pse = (np.asarray(table.flags) & psyfit.NO_PSE) > 0
-    for i in np.flatnonzero(no_pse):
-        why = ", ".join(psyfit.flag_names(int(table.flags[i])))
-        console.print(
-            f"warning: participant {table.participant[i]}, condition {table.condition[i]}: "
-            f"the data place no PSE ({why}); its PSE {table.pse[i]:+.4g} in fits.csv is set "
-            "by the fit's prior and least slope, not by the data, and enters the group test "
-            "as such"
-        )
-    written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
-    if not rows:
-        written.remove("group_test.csv")
-        console.print(
+    tested = [c for c in conditions if c != control] if control in conditions else []
+    if not tested:
+        no_test = (
             f"no group test: {args.trials} has no condition {control!r} to compare with "
             f"(conditions: {', '.join(map(str, conditions))}); name one with --control"
             if control not in conditions
             else f"no group test: {args.trials} has no condition besides {control!r}"
         )
+        if args.ranksum is not None:
+            raise UsageError(f"--ranksum: applies to the group test, and there is none ({no_test})")
+        console.print(no_test)
+    method = args.ranksum or "auto"
+    size = {c: groups.condition.count(c) for c in conditions}
+    for c in tested if method == "exact" else ():
+        too_large = stats.exact_too_large(size[c], size[control])
+        if too_large:
+            raise UsageError(
+                f"--ranksum exact: {too_large}; use --ranksum asymptotic (at these sizes the "
+                "normal approximation is close)"
+            )
+    out = args.out
+    written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
+    if not tested:
+        written.remove("group_test.csv")
     with _staged(out, replaces=FIT_OUTPUTS, keep=[args.trials]) as staging:
+        # In float64, as statsmodels and MATLAB fit: in float32 the
+        # log-likelihood of a few thousand trials a level is off by 0.01
+        # (binomial terms that cancel), and its fits stop at slopes whose
+        # rounding matters; the group test's normal tail 2 Phi(-|z|) is 0 in
+        # float32 from z = 13.
+        with jax.enable_x64(True):
+            key = jax.random.key(args.seed or 0)
+            table = trials.fit_groups(groups, key=key, n_resamples=args.resamples)
+            rows = _group_tests(table, control, method)
+        _warn_undetermined(console, groups, table)
         trials.write_fits(staging / "fits.csv", table)
         if rows:
             with open(staging / "group_test.csv", "w", newline="") as f:
@@ -752,12 +759,50 @@ def psychometric_fit(args, console):
         figures.plot_pse(staging / "pse.png", table)
     for row in rows:
         console.print(
-            f"{row['condition']} vs {row['control']}: median PSE {row['median']:+.3f} vs "
-            f"{row['median_control']:+.3f} log units, rank-sum p = {row['p']:.3g} "
+            f"{row['condition']} vs {row['control']}: median PSE {_signed(row['median'])} vs "
+            f"{_signed(row['median_control'])} log units, rank-sum p = {row['p']:.3g} "
             f"({'exact' if row['p_exact'] == 'true' else 'normal approximation'}; "
             f"n = {row['n']}, {row['n_control']})"
         )
     console.print(f"wrote {', '.join(written)} to {out}/", soft_wrap=True)
+
+
+def _signed(value, digits=3):
+    """``value`` with its sign and ``digits`` decimals, 0 as ``+0.000`` (not ``-0.000``)."""
+    return f"{round(value, digits) + 0.0:+.{digits}f}"
+
+
+def _warn_undetermined(console, groups, table):
+    """Say which groups' data do not determine their fit: those that place
+    no PSE (every response the same, one level, or no slope), whose PSE is
+    the prior's, and those whose levels separate the responses, whose PSE
+    lies somewhere between two levels (:func:`~jaxadapt.psychophysics.trials.fit_groups`)."""
+    from jaxadapt.psychophysics import fit as psyfit
+    from jaxadapt.psychophysics.trials import separating_gap
+
+    flags = np.asarray(table.flags)
+    low, high = separating_gap(groups)
+    for i in np.flatnonzero(flags & (psyfit.NO_PSE | psyfit.SEPARATION)):
+        who = f"participant {table.participant[i]}, condition {table.condition[i]}"
+        if flags[i] & psyfit.NO_PSE:
+            why = ", ".join(psyfit.flag_names(int(flags[i])))
+            console.print(
+                f"warning: {who}: the data place no PSE ({why}); its PSE {table.pse[i]:+.4g} "
+                "in fits.csv is set by the fit's prior and least slope, not by the data, and "
+                "enters the group test as such; its interval is (-inf, inf)"
+            )
+        elif low[i] < high[i]:
+            console.print(
+                f"warning: {who}: the levels separate the 'no' from the 'yes' responses, so "
+                f"the data place the PSE only between {low[i]:+.3g} and {high[i]:+.3g} log "
+                "units; its interval in fits.csv spans at least that"
+            )
+        else:
+            console.print(
+                f"warning: {who}: the responses change at one level, {low[i]:+.3g} log units "
+                "('no' below it, 'yes' above: quasi-complete separation); the slope in "
+                "fits.csv is the fit's prior's, not the data's"
+            )
 
 
 def _weights(items, cues):
@@ -789,6 +834,7 @@ def psychometric_simulate(args, console):
 
     from jaxadapt.psychophysics import design
     from jaxadapt.psychophysics import observer as obs
+    from jaxadapt.psychophysics.trials import csv_cell
 
     if args.protocol not in design.PROTOCOLS:
         raise UsageError(
@@ -824,7 +870,7 @@ def psychometric_simulate(args, console):
             writer = csv.writer(f)
             writer.writerow(observers)
             for row in zip(*observers.values(), strict=True):
-                writer.writerow([_cell(v) for v in row])
+                writer.writerow([csv_cell(v) for v in row])
         with open(staging / "stimuli.csv", "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(
@@ -833,22 +879,13 @@ def psychometric_simulate(args, console):
             for c, condition in enumerate(protocol.conditions):
                 for i, level in enumerate(protocol.levels):
                     cells = [level, d_lum[c, i], *d_cues[c, i]]
-                    writer.writerow([condition, *(_cell(v) for v in cells)])
+                    writer.writerow([condition, *(csv_cell(v) for v in cells)])
     excluded = int(np.sum(experiment.excluded))
     console.print(
         f"{args.protocol}: {args.observers} observers, {excluded} excluded (training below "
         f"{protocol.exclusion:.0%} correct); wrote trials.csv ({n_rows} trials), "
         f"observers.csv, stimuli.csv to {args.out}/"
     )
-
-
-def _cell(value):
-    """A CSV cell: numbers exactly (``repr``), booleans as true/false."""
-    if isinstance(value, bool | np.bool_):
-        return "true" if value else "false"
-    if isinstance(value, float | np.floating):
-        return repr(float(value))
-    return value
 
 
 def main(argv=None):
@@ -878,12 +915,40 @@ def main(argv=None):
     except jax.errors.JaxRuntimeError as e:
         if "RESOURCE_EXHAUSTED" not in str(e):
             raise
+        command = args.action if args.command == "psychometric" else args.command
         print(
-            f"jaxadapt: error: out of memory ({_message(e)}); try a smaller --chunk or --size",
+            f"jaxadapt: error: out of memory ({_message(e)}); try {_SMALLER[command]}",
             file=sys.stderr,
         )
         return 2
     return 0
+
+
+def run():
+    """The program: :func:`main` on the command line's arguments, then exit
+    with its status.
+
+    An interrupted run leaves through ``os._exit``, once :func:`main` has
+    cleaned up and said so: the computation it interrupted may still be
+    running on XLA's threads, and Python's finalisation, which frees what
+    they use, crashed 3 of 8 runs sent SIGTERM during a bootstrap ("pure
+    virtual method called", "corrupted size vs. prev_size", a segmentation
+    fault: status 134 or 139 instead of 143).
+    """
+    status = main()
+    if _SIGNALLED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)
+
+
+#: What to make smaller when a command runs out of memory.
+_SMALLER = {
+    "render": "a smaller --chunk or --size",
+    "fit": "fewer --resamples",
+    "simulate": "fewer --observers",
+}
 
 
 #: Signals (SIGINT, SIGTERM) received while a command ran (:func:`_interruptible`).
@@ -933,4 +998,4 @@ def _message(error):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -166,6 +166,10 @@ def test_training_accuracy_exclusion_and_counts():
     for fn in (design.training_accuracy, partial(design.counts, A)):
         with pytest.raises(ValueError, match=r"^responses: expected shape \(\.\.\., 320\)"):
             fn(t, responses[:, 1:])
+        # Coded 1/2, or NaN: counted as 60 "yes" of 30, or a correct "no".
+        for coded, got in ((responses + 1, "got 2"), (responses * np.nan, "got nan")):
+            with pytest.raises(ValueError, match=f"^responses: expected 0 or 1 .*{got}"):
+                fn(t, coded)
 
 
 @pytest.mark.parametrize(
@@ -375,3 +379,11 @@ def test_fit_groups_writes_fits_csv(tmp_path):
         assert float(r["ci_low"]) < float(r["pse"]) < float(r["ci_high"])
         assert r["converged"] == "true" and r["flags"] == ""
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_csv_cells_are_the_shortest_decimals_of_their_dtype():
+    # observers.csv gave a float32 weight of -0.1 as -0.10000000149011612.
+    assert trials.csv_cell(np.float32(-0.1)) == "-0.1"
+    assert trials.csv_cell(np.float64(0.1) + np.float64(0.2)) == "0.30000000000000004"
+    assert (trials.csv_cell(np.bool_(True)), trials.csv_cell(False)) == ("true", "false")
+    assert trials.csv_cell(np.float64(-np.inf)) == "-inf" and trials.csv_cell("s01") == "s01"

@@ -341,7 +341,10 @@ def trial_list(protocol, key):
 
 
 def _responses(trials, responses):
-    """``responses`` as an array, checked to hold one answer per trial on its last axis."""
+    """``responses`` as an array, checked to hold one answer per trial on its
+    last axis, each 0 or 1 (``ValueError`` otherwise; traced values are not
+    checked). Coded 1/2, responses were half "correct" and counted 60 "yes"
+    of 30 trials; NaN counted as a correct "no"."""
     responses = jnp.asarray(responses)
     n_trials = trials.level.shape[-1]
     if responses.shape[-1:] != (n_trials,):
@@ -349,6 +352,14 @@ def _responses(trials, responses):
             f"responses: expected shape (..., {n_trials}), one per trial, got shape "
             f"{responses.shape}"
         )
+    if not isinstance(responses, jax.core.Tracer):
+        values = np.asarray(responses)
+        other = np.unique(values[(values != 0) & (values != 1)])
+        if other.size:
+            raise ValueError(
+                f"responses: expected 0 or 1 (1: the test judged brighter), got "
+                f"{', '.join(map(str, other[:5]))}{' ...' if other.size > 5 else ''}"
+            )
     return responses
 
 

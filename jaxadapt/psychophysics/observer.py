@@ -1047,14 +1047,14 @@ def write_trials(path, protocol, experiment):
     """Write :func:`trial_table` as a CSV trial table (read back by
     :func:`jaxadapt.psychophysics.trials.read_trials`; the extra columns
     ``block`` and ``test_first`` are ignored there). Levels are written
-    exactly (``repr``). The file appears only once complete. Returns the
-    number of rows."""
+    exactly (:func:`~jaxadapt.psychophysics.trials.csv_cell`). The file
+    appears only once complete. Returns the number of rows."""
     table = trial_table(protocol, experiment)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(table)
         for row in zip(*table.values(), strict=True):
-            writer.writerow([repr(float(v)) if isinstance(v, float) else v for v in row])
+            writer.writerow([trial_tables.csv_cell(v) for v in row])
     return len(table["response"])
 
 

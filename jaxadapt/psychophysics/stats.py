@@ -164,6 +164,38 @@ def _table_cost(s_lo, s_hi, l_lo, l_hi):
     return max(int(entries), working), work
 
 
+def _exact_bounds(n, m, masked=(False, False), method="exact"):
+    """Bounds ``(s_lo, s_hi, l_lo, l_hi)`` of the smaller and the larger
+    group's sizes for which exact p are tabulated, groups of up to ``n`` and
+    ``m`` values: static, fixed where a group has no mask (``masked``), and
+    the smaller at most :data:`AUTO_EXACT_MAX` for ``method="auto"``."""
+    low_x, low_y = (0 if mask else k for mask, k in zip(masked, (n, m), strict=True))
+    s_hi = min(n, m) if method == "exact" else min(n, m, AUTO_EXACT_MAX)
+    return min(low_x, low_y), s_hi, max(low_x, low_y), max(n, m)
+
+
+def exact_too_large(n, m, masked=(False, False), method="exact"):
+    """Why exact p for groups of up to ``n`` and ``m`` values (with masks
+    where ``masked``) are not computed by ``method``: the table they need,
+    or the work to build it, over its limit (said in words); ``None`` when
+    they are.
+
+    Examples
+    --------
+    >>> exact_too_large(11, 11) is None
+    True
+    >>> exact_too_large(170, 170).partition(", ")[0]
+    'groups of 170 and 170 values need a table of 4942071 exact tail probabilities'
+    """
+    entries, work = _table_cost(*_exact_bounds(n, m, masked, method))
+    sizes = f"groups of {'up to ' if any(masked) else ''}{n} and {m} values"
+    if entries > _MAX_TABLE:
+        return f"{sizes} need a table of {entries} exact tail probabilities, more than {_MAX_TABLE}"
+    if work > _MAX_WORK:
+        return f"{sizes} need {work} operations to tabulate their exact p, more than {_MAX_WORK}"
+    return None
+
+
 @functools.lru_cache(maxsize=16)
 def _tail_table(s_lo, s_hi, l_lo, l_hi):
     """Upper tails of the exact null distribution of the rank-sum statistic.
@@ -351,24 +383,16 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     p = 2 * ndtr(-jnp.abs(z))
     exact = jnp.zeros(batch, bool)
     if method != "asymptotic":
-        # Static bounds of the group sizes: fixed without a mask.
-        n, m = x.shape[-1], y.shape[-1]
-        low_x, low_y = (0 if mask is not None else k for mask, k in ((x_mask, n), (y_mask, m)))
-        s_lo, s_hi = min(low_x, low_y), min(n, m)
-        l_lo, l_hi = max(low_x, low_y), max(n, m)
-        if method == "auto":
-            s_hi = min(s_hi, AUTO_EXACT_MAX)
-        entries, work = _table_cost(s_lo, s_hi, l_lo, l_hi)
-        fits = s_lo <= s_hi and entries <= _MAX_TABLE and work <= _MAX_WORK
-        if method == "exact" and not fits:
+        masked = (x_mask is not None, y_mask is not None)
+        bounds = _exact_bounds(x.shape[-1], y.shape[-1], masked, method)
+        too_large = exact_too_large(x.shape[-1], y.shape[-1], masked, method)
+        if method == "exact" and too_large:
             raise ValueError(
-                f"method='exact': groups of up to {n} and {m} values "
-                f"({'with' if (x_mask, y_mask) != (None, None) else 'without'} masks) need "
-                f"a table of {entries} exact tail probabilities and {work} operations to "
-                f"build it, more than {_MAX_TABLE} and {_MAX_WORK}; use method='asymptotic' "
-                "(at these sizes the normal approximation is close)"
+                f"method='exact': {too_large}; use method='asymptotic' (at these sizes the "
+                "normal approximation is close)"
             )
-        if fits:
+        if bounds[0] <= bounds[1] and not too_large:
+            s_lo, s_hi, l_lo, l_hi = bounds
             exact = jnp.minimum(n_x, n_y) <= s_hi
             if method == "auto":
                 exact &= ~jnp.any(valid & (tied > 1), axis=-1)

@@ -104,8 +104,9 @@ class Groups(NamedTuple):
 
 class FitTable(NamedTuple):
     """One row per group; the fields are the columns of ``fits.csv``
-    (``FIT_COLUMNS``). ``ci_low, ci_high`` bound the PSE; ``flags`` are the
-    integer flags of :mod:`jaxadapt.psychophysics.fit`."""
+    (``FIT_COLUMNS``). ``ci_low, ci_high`` bound the PSE (see
+    :func:`fit_groups`); ``flags`` are the integer flags of
+    :mod:`jaxadapt.psychophysics.fit`."""
 
     participant: tuple
     condition: tuple
@@ -226,7 +227,7 @@ def read_trials(path):
                 cells.append(cells_of_row)
                 rows.append(reader.line_num)
         except UnicodeDecodeError:
-            raise ValueError(f"{path}: expected a UTF-8 text CSV, got binary data") from None
+            raise ValueError(_not_utf8(path)) from None
     if not cells:
         raise ValueError(f"{path}: expected at least one data row, got none")
     column = {name: [c[i] for c in cells] for name, i in index.items()}
@@ -262,6 +263,20 @@ def read_trials(path):
 
 
 # -- grouping -----------------------------------------------------------------
+
+
+def _not_utf8(path):
+    """The message for a trial table that is not UTF-8: where, and whether it
+    is binary data or text in another encoding (a spreadsheet's export)."""
+    raw = Path(path).read_bytes()
+    text = raw.decode("utf-8-sig", errors="replace")  # the first bad byte becomes U+FFFD
+    line = text.count("\n", 0, text.find("\ufffd")) + 1
+    what = (
+        "binary data"
+        if b"\0" in raw
+        else "text in another encoding (e.g. a Windows-1252 export: save it as UTF-8)"
+    )
+    return f"{path}, line {line}: expected a UTF-8 text CSV, got {what}"
 
 
 def group_trials(table):
@@ -325,6 +340,19 @@ def fit_groups(
 ):
     """Fit every group in one call, with confidence intervals for the PSE.
 
+    The interval is the bootstrap's percentile interval (or the Wald
+    interval), except where the data do not determine the fit
+    (:data:`jaxadapt.psychophysics.fit.NO_MLE`). Under separation the data
+    say only that the PSE lies between the highest level with a "no" and
+    the lowest with a "yes" (for a rising function): every PSE in that
+    gap fits them as well in the limit of a steep slope. The prior then
+    picks one, and resamples of the fitted curve, nearly a step, separate
+    again at the same levels: the percentile interval came out 0.04 log
+    units wide in a gap of 0.15. So the interval written spans at least
+    the gap. Where the data place no PSE at all
+    (:data:`~jaxadapt.psychophysics.fit.NO_PSE`: every response the same,
+    one level, no slope) it is ``(-inf, inf)``.
+
     Parameters
     ----------
     groups : Groups
@@ -356,6 +384,7 @@ def fit_groups(
         fits = psyfit.fit(*arrays, **options)
         half = ndtri((1 + confidence) / 2) * fits.se_pse
         low, high = fits.pse - half, fits.pse + half
+    low, high = _at_least_the_data(groups, np.asarray(fits.flags), low, high)
     columns = [fits.pse, fits.sigma, fits.b0, fits.b1, fits.se_pse, low, high, fits.loglik]
     return FitTable(
         groups.participant,
@@ -366,18 +395,47 @@ def fit_groups(
     )
 
 
-#: How ``write_fits`` formats the columns that are not numbers.
-_FORMATS = {
-    "converged": lambda value: "true" if value else "false",
-    "flags": lambda value: "|".join(psyfit.flag_names(value)),
-}
+def separating_gap(groups):
+    """Per group, the levels ``(low, high)`` between which the responses
+    change: the highest level with a "no" and the lowest with a "yes" when
+    every "no" lies at or below every "yes", the reverse for a falling
+    function; where neither holds, ``(-inf, inf)``. Under separation
+    (:data:`jaxadapt.psychophysics.fit.SEPARATION`) the PSE lies in it."""
+    x, k, n = groups.levels, groups.n_yes, groups.n_total
+    yes, no = (n > 0) & (k > 0), (n > 0) & (k < n)
+    top = [np.max(np.where(m, x, -np.inf), axis=1) for m in (no, yes)]
+    bottom = [np.min(np.where(m, x, np.inf), axis=1) for m in (yes, no)]
+    rising, falling = top[0] <= bottom[0], top[1] <= bottom[1]
+    low = np.where(rising, top[0], np.where(falling, top[1], -np.inf))
+    high = np.where(rising, bottom[0], np.where(falling, bottom[1], np.inf))
+    return low, high
 
 
-def _cell(value):
-    """A number as the shortest decimal that reads back to the same value in
-    its dtype (not ``str``: colour-science, which jaxadapt imports, sets
-    NumPy's printing to its 1.13 style, 6 significant digits in float32 and
-    12 in float64); anything else as ``str``."""
+def _at_least_the_data(groups, flags, low, high):
+    """The PSE interval ``(low, high)`` widened to what the data leave
+    open: the separating gap under separation, everything where they place
+    no PSE (:func:`fit_groups`)."""
+    gap_low, gap_high = separating_gap(groups)
+    separated = (flags & psyfit.SEPARATION) > 0
+    unplaced = (flags & psyfit.NO_PSE) > 0
+    low = np.where(separated, np.minimum(low, gap_low), low)
+    high = np.where(separated, np.maximum(high, gap_high), high)
+    return np.where(unplaced, -np.inf, low), np.where(unplaced, np.inf, high)
+
+
+#: How ``write_fits`` formats the flags, a column of integers.
+_FORMATS = {"flags": lambda value: "|".join(psyfit.flag_names(value))}
+
+
+def csv_cell(value):
+    """A CSV cell: a number as the shortest decimal that reads back to the
+    same value in its dtype (not ``str``: colour-science, which jaxadapt
+    imports, sets NumPy's printing to its 1.13 style, 6 significant digits in
+    float32 and 12 in float64; nor ``repr`` of the float64 it converts to,
+    which gives a float32 -0.1 as -0.10000000149011612), a boolean as
+    ``true``/``false``, anything else as ``str``."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
     if isinstance(value, (float, np.floating)):
         return repr(float(np.format_float_positional(value, unique=True, trim="-")))
     return str(value)
@@ -387,7 +445,7 @@ def write_fits(path, table):
     """Write ``fits.csv``: a header of ``FIT_COLUMNS`` and one row per group.
 
     Numbers are written as the shortest decimal that reads back to the same
-    value in their dtype (:func:`_cell`), ``converged`` as ``true``/``false``
+    value in their dtype (:func:`csv_cell`), ``converged`` as ``true``/``false``
     and ``flags`` as flag names joined by ``|`` (empty when none). The file
     appears only once complete (:func:`jaxadapt.io.atomic_path`).
     """
@@ -396,7 +454,7 @@ def write_fits(path, table):
         writer.writerow(FIT_COLUMNS)
         for row in zip(*table, strict=True):
             cells = zip(FIT_COLUMNS, row, strict=True)
-            writer.writerow([_FORMATS.get(c, _cell)(v) for c, v in cells])
+            writer.writerow([_FORMATS.get(c, csv_cell)(v) for c, v in cells])
 
 
 def fit_file(trials_path, fits_path, *, key, **options):
