@@ -76,3 +76,10 @@ def test_the_tunnel_fovea_is_a_degree_at_the_centre_of_the_view():
     scene = scenes.tunnel_drive(width, 270, duration=0.1)
     focal = 0.5 * width / np.tan(np.radians(30.0))
     assert scene.pixels_per_degree == pytest.approx(focal * np.tan(np.radians(0.5)) * 2, rel=1e-4)
+
+
+def test_the_one_chart_patch_outside_bt709_is_clipped_as_documented():
+    # colorchecker_rgb: cyan (no. 18) has red -0.033 in BT.709 under D65.
+    rgb = scenes.colorchecker_rgb()
+    assert np.all(rgb >= 0) and np.count_nonzero(rgb == 0) == 1 and rgb[2, 5, 0] == 0
+    assert float(photopic_luminance(rgb[2, 5])) == pytest.approx(0.2058, abs=5e-4)
