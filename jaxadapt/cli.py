@@ -517,21 +517,12 @@ def _source(args):
         kwargs["fps"] = args.fps
     try:
         scene = SCENES[args.scene or "tunnel"](**kwargs)
-    except ValueError as error:  # named by the scene's argument: name the option
+    except ValueError as error:  # named by the scene's arguments: name the options given
         name, _, rest = str(error).partition(": ")
-        raise UsageError(f"{_SCENE_OPTIONS.get(name, name)}: {rest}") from None
+        given = [o for o, v in (("--duration", args.duration), ("--fps", args.fps)) if v]
+        options = {"duration": "--duration", "fps": "--fps", "duration, fps": ", ".join(given)}
+        raise UsageError(f"{options.get(name, name)}: {rest}") from None
     return pipeline.from_scene(scene, args.multiplier)
-
-
-#: The options that set a built-in scene's arguments, by the argument's name
-#: in the scene's errors.
-_SCENE_OPTIONS = {
-    "width": "--size",
-    "height": "--size",
-    "duration": "--duration",
-    "fps": "--fps",
-    "duration, fps": "--duration",
-}
 
 
 def _operator(args, source, fps):
@@ -800,7 +791,7 @@ def _warn_undetermined(console, groups, table):
         else:
             console.print(
                 f"warning: {who}: the responses change at one level, {low[i]:+.3g} log units "
-                "('no' below it, 'yes' above: quasi-complete separation); the slope in "
+                "(one answer on either side of it: quasi-complete separation); the slope in "
                 "fits.csv is the fit's prior's, not the data's"
             )
 

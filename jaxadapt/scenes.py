@@ -15,6 +15,7 @@ backgrounds and their halos (§6.4).
 """
 
 import functools
+import operator
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -65,14 +66,23 @@ def _check_frames(width, height, duration, fps):
     rate that are not positive and finite or give no frame (``ValueError``
     naming the argument)."""
     for name, value in (("width", width), ("height", height)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        try:
+            whole = not isinstance(value, bool) and operator.index(value) >= 1
+        except TypeError:
+            whole = False
+        if not whole:
             raise ValueError(f"{name}: expected a whole number of pixels >= 1, got {value!r}")
     check_value("duration", duration, _positive, "a positive, finite length (s)")
     check_value("fps", fps, _positive, "a positive, finite frame rate (frames/s)")
-    if round(duration * fps) < 1:
+    if not 1 <= duration * fps < MAX_FRAMES + 0.5:
         raise ValueError(
-            f"duration, fps: expected at least one frame, got {duration!r} s at {fps!r} frames/s"
+            f"duration, fps: expected from 1 to {MAX_FRAMES:.0e} frames, got {duration!r} s at "
+            f"{fps!r} frames/s"
         )
+
+
+#: Most frames a built-in scene has: its times alone are 0.8 GB (38 days at 30 fps).
+MAX_FRAMES = 10**8
 
 
 def _check_luminances(**luminances):
@@ -612,11 +622,14 @@ def flash(
     _check_luminances(luminance=luminance)
     check_value("radius_deg", radius_deg, _positive, "a positive, finite radius (degrees)")
     check_value("field_deg", field_deg, _positive, "a positive, finite field (degrees)")
-    if not (0 <= onset < duration and 1e-6 <= flash_duration < np.inf):
+    if not 0 <= onset < np.inf:
+        raise ValueError(f"onset: expected a finite time >= 0 (s), got {onset!r}")
+    if not onset < duration:
         raise ValueError(
-            f"onset, flash_duration: expected onset in [0, {duration!r}) s and a length of at "
-            f"least 1e-6 s, got onset {onset!r}, flash_duration {flash_duration!r}"
+            f"duration: expected more than the flash's onset, {onset!r} s, got {duration!r}"
         )
+    if not 1e-6 <= flash_duration < np.inf:
+        raise ValueError(f"flash_duration: expected at least 1e-6 s, got {flash_duration!r}")
     ppd = width / field_deg
     y, x = np.mgrid[:height, :width]
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
@@ -704,7 +717,7 @@ def checkerboard(
         raise ValueError(f"checks: expected a whole number of squares >= 1, got {checks!r}")
     half = width // 2
     y, x = np.mgrid[:height, :half]
-    parity = (x * checks // max(half, 1) + y * checks // height) % 2
+    parity = (x * checks // half + y * checks // height) % 2
     board = np.where(parity[..., None] == 0, float(white), float(black)) * np.ones(3)
     return _afterimage_stimulus(
         "checkerboard", board, width, height, duration, fps, fixation, background, field_deg

@@ -334,6 +334,9 @@ def test_gaze_and_trial_files_that_are_not_text_are_named(tmp_path, capsys):
     latin.write_bytes("participant,level,response\nJürgen,0.1,1\n".encode("cp1252"))
     status, err = _run(capsys, "psychometric", "fit", str(latin), "--out", str(tmp_path / "f"))
     _assert_one_line_error(status, err, "latin.csv, line 2", "another encoding", "save it as UTF-8")
+    latin.write_bytes("participant,level,response\nJurgen,0.1,1\n".encode("utf-16"))
+    status, err = _run(capsys, "psychometric", "fit", str(latin), "--out", str(tmp_path / "f"))
+    _assert_one_line_error(status, err, "latin.csv, line 1", "UTF-16", "save it as UTF-8")
     status, err = _run(capsys, "render", str(tmp_path), "--out", str(tmp_path / "o"))
     _assert_one_line_error(status, err, str(tmp_path), "folder")
 
@@ -768,6 +771,21 @@ def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command
     assert err.strip().splitlines()[-1] == "jaxadapt: interrupted; nothing was written to --out"
     assert "Traceback" not in err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        # a 20 s tunnel at 1e-5 frames/s has no frame: it named --duration, not given
+        (["--fps", "1e-5"], "--fps: expected from 1 to 1e+08 frames"),
+        (["--scene", "flash", "--duration", "0.2"], "--duration: expected more"),
+        (["--duration", "1e308", "--fps", "10"], "--duration, --fps: expected"),  # OverflowError
+    ],
+)
+def test_a_scenes_error_names_the_options_given(tmp_path, capsys, argv, message):
+    status, err = _run(capsys, "render", *argv, "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, message)
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize(

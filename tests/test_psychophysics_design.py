@@ -332,9 +332,14 @@ def test_fits_csv_numbers_read_back_exactly_whatever_numpy_printing():
     import colour  # noqa: F401
 
     for value in (np.float32(-0.012810701), np.float64(-0.012810690977614829), np.float64(1e-300)):
-        assert type(value)(trials._cell(value)) == value
-    assert trials._cell(np.float32(-0.012810701)) == "-0.012810701"
-    assert trials._cell("p1") == "p1" and trials._cell(np.int64(7)) == "7"
+        assert type(value)(trials.csv_cell(value)) == value
+    assert trials.csv_cell(np.float32(-0.012810701)) == "-0.012810701"
+    assert trials.csv_cell("p1") == "p1" and trials.csv_cell(np.int64(7)) == "7"
+    # Nor repr of the float64 it converts to: observers.csv gave a float32
+    # weight of -0.1 as -0.10000000149011612.
+    assert trials.csv_cell(np.float32(-0.1)) == "-0.1"
+    assert (trials.csv_cell(np.bool_(True)), trials.csv_cell(False)) == ("true", "false")
+    assert trials.csv_cell(np.float64(-np.inf)) == "-inf"
 
 
 def test_fit_groups_writes_fits_csv(tmp_path):
@@ -381,9 +386,17 @@ def test_fit_groups_writes_fits_csv(tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
-def test_csv_cells_are_the_shortest_decimals_of_their_dtype():
-    # observers.csv gave a float32 weight of -0.1 as -0.10000000149011612.
-    assert trials.csv_cell(np.float32(-0.1)) == "-0.1"
-    assert trials.csv_cell(np.float64(0.1) + np.float64(0.2)) == "0.30000000000000004"
-    assert (trials.csv_cell(np.bool_(True)), trials.csv_cell(False)) == ("true", "false")
-    assert trials.csv_cell(np.float64(-np.inf)) == "-inf" and trials.csv_cell("s01") == "s01"
+def test_fit_groups_keeps_the_intervals_in_the_fits_dtype():
+    # Widened to a separating gap (float64 levels), float32 intervals became
+    # float64 and fits.csv wrote them with 16 digits.
+    groups = trials.Groups(
+        ("p1", "p2"),
+        ("c", "c"),
+        np.array([[-0.3, 0.0, 0.3]] * 2),
+        np.array([[0.0, 0.0, 30.0], [5.0, 15.0, 25.0]]),
+        np.full((2, 3), 30.0),
+    )
+    with jax.enable_x64(False):
+        table = trials.fit_groups(groups, key=None, n_resamples=0)
+    assert table.pse.dtype == table.ci_low.dtype == table.ci_high.dtype == np.float32
+    assert table.ci_low[0] <= 0.0 and table.ci_high[0] >= 0.3  # the gap of p1's separation

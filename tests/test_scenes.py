@@ -51,6 +51,8 @@ def test_every_scene_renders_one_time_as_a_batch_of_one(name):
         (lambda: scenes.flash(fps=0), "fps"),
         (lambda: scenes.title_step(duration=-1), "duration"),
         (lambda: scenes.title_step(duration=0.001), "duration, fps"),
+        (lambda: scenes.title_step(duration=1e308), "duration, fps"),  # an OverflowError
+        (lambda: scenes.flash(duration=0.2), "duration"),  # before the flash's onset
         (lambda: scenes.title_step(sunlight_goal=-5), "sunlight_goal"),
         (lambda: scenes.flash(luminance=float("nan")), "luminance"),
         (lambda: scenes.checkerboard(white=-1), "white"),
@@ -83,3 +85,11 @@ def test_the_one_chart_patch_outside_bt709_is_clipped_as_documented():
     rgb = scenes.colorchecker_rgb()
     assert np.all(rgb >= 0) and np.count_nonzero(rgb == 0) == 1 and rgb[2, 5, 0] == 0
     assert float(photopic_luminance(rgb[2, 5])) == pytest.approx(0.2058, abs=5e-4)
+
+
+def test_integer_sizes_of_numpy_and_jax_are_sizes():
+    # A 0-d integer array or a JAX integer was refused as "not a whole number".
+    import jax.numpy as jnp
+
+    scene = scenes.mesopic(np.array(16), jnp.int32(12), np.float32(0.2), np.float32(10.0))
+    assert np.asarray(scene.render(scene.times[:1])).shape == (1, 12, 16, 3)

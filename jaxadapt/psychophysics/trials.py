@@ -24,6 +24,7 @@ file and the row (rows are counted as a spreadsheet shows them, the header
 being row 1) or the column.
 """
 
+import codecs
 import csv
 from pathlib import Path
 from typing import NamedTuple
@@ -267,15 +268,21 @@ def read_trials(path):
 
 def _not_utf8(path):
     """The message for a trial table that is not UTF-8: where, and whether it
-    is binary data or text in another encoding (a spreadsheet's export)."""
-    raw = Path(path).read_bytes()
-    text = raw.decode("utf-8-sig", errors="replace")  # the first bad byte becomes U+FFFD
-    line = text.count("\n", 0, text.find("\ufffd")) + 1
-    what = (
-        "binary data"
-        if b"\0" in raw
-        else "text in another encoding (e.g. a Windows-1252 export: save it as UTF-8)"
-    )
+    is UTF-16 or UTF-32 text (a spreadsheet's "Unicode text"), other binary
+    data, or text in another encoding (a spreadsheet's export)."""
+    raw = Path(path).read_bytes().removeprefix(codecs.BOM_UTF8)
+    start = 0
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        start = error.start
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE, codecs.BOM_UTF32_BE)):
+        what = "UTF-16 or UTF-32 text (e.g. a spreadsheet's Unicode text: save it as UTF-8)"
+    elif b"\0" in raw:
+        what = "binary data"
+    else:
+        what = "text in another encoding (e.g. a Windows-1252 export: save it as UTF-8)"
+    line = raw.count(b"\n", 0, start) + 1
     return f"{path}, line {line}: expected a UTF-8 text CSV, got {what}"
 
 
@@ -415,7 +422,8 @@ def _at_least_the_data(groups, flags, low, high):
     """The PSE interval ``(low, high)`` widened to what the data leave
     open: the separating gap under separation, everything where they place
     no PSE (:func:`fit_groups`)."""
-    gap_low, gap_high = separating_gap(groups)
+    low, high = np.asarray(low), np.asarray(high)
+    gap_low, gap_high = (g.astype(low.dtype) for g in separating_gap(groups))
     separated = (flags & psyfit.SEPARATION) > 0
     unplaced = (flags & psyfit.NO_PSE) > 0
     low = np.where(separated, np.minimum(low, gap_low), low)
