@@ -149,7 +149,7 @@ def plot_psychometric(path, groups, table, columns=4):
         p = groups.n_yes[g][shown] / groups.n_total[g][shown]
         ax.plot(groups.levels[g][shown], p, "o", color=colour, ms=4)
         curve = ndtr((x - table.pse[g]) / table.sigma[g])
-        ax.plot(x, curve, color=colour, label=f"{cond}: PSE {table.pse[g]:+.3f}")
+        ax.plot(x, curve, color=colour, label=f"{cond}: PSE {round(table.pse[g], 3) + 0.0:+.3f}")
         ax.set(title=str(who), ylim=(-0.03, 1.03), xlabel="log10 test / standard")
         ax.legend(fontsize=7)
     for ax in axes[len(participants) :]:

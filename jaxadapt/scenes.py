@@ -644,10 +644,11 @@ def flash(
 
 
 def _cross(image, cx, cy, arm, value):
-    """Draw a fixation cross (1 pixel thick) of half-length ``arm`` at (cx, cy)."""
+    """Draw a fixation cross (1 pixel thick) of half-length ``arm`` at (cx, cy),
+    cut at the image's edges (a negative start would index from the far end)."""
     cx, cy = int(round(cx)), int(round(cy))
-    image[cy, cx - arm : cx + arm + 1] = value
-    image[cy - arm : cy + arm + 1, cx] = value
+    image[cy, max(cx - arm, 0) : cx + arm + 1] = value
+    image[max(cy - arm, 0) : cy + arm + 1, cx] = value
     return image
 
 

@@ -93,3 +93,11 @@ def test_integer_sizes_of_numpy_and_jax_are_sizes():
 
     scene = scenes.mesopic(np.array(16), jnp.int32(12), np.float32(0.2), np.float32(10.0))
     assert np.asarray(scene.render(scene.times[:1])).shape == (1, 12, 16, 3)
+
+
+def test_fixation_crosses_stay_on_their_side_of_a_small_frame():
+    # A 6-pixel-wide frame: the left cross (at x = 1, arms of 2) sliced its
+    # row from -1, which indexes from the far end: an empty arm.
+    frame = np.asarray(scenes.checkerboard(width=6, height=8, duration=0.1).render(0.0))[0]
+    assert np.all(frame[4] == 0)  # both crosses' horizontal arms: the whole row
+    assert np.all(frame[2:7, 1] == 0) and np.all(frame[2:7, 4] == 0)  # their vertical arms
