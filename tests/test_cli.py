@@ -185,7 +185,7 @@ def test_unwritable_output(tmp_path, capsys):
 def test_a_sequence_shorter_than_one_frame_is_refused(tmp_path, capsys):
     out = tmp_path / "new" / "out"
     status, err = _run(capsys, "render", "--duration", "0.01", "--out", str(out))
-    _assert_one_line_error(status, err, "--duration", "at least one frame")
+    _assert_one_line_error(status, err, "--duration: expected from 1 to 1e+08 frames")
     assert not (tmp_path / "new").exists()  # a failed run leaves no folder behind
 
 

@@ -644,10 +644,13 @@ def test_a_flash_lasts_its_length_at_any_frame_rate(length):
         after[fps] = np.asarray(diag.B_gaze)[np.argmin(np.abs(scene.times - 0.4))]
     assert after[30.0][2] > 1e-3
     np.testing.assert_allclose(after[30.0], after[120.0], rtol=1e-9)
-    for onset, length in ((-0.1, 0.125), (4.0, 0.125), (0.25, 1e-10), (0.25, np.nan)):
-        with pytest.raises(
-            ValueError, match=r"onset, flash_duration: expected onset in \[0, 4.0\)"
-        ):
+    for onset, length, message in (
+        (-0.1, 0.125, "onset: expected a finite time >= 0"),
+        (4.0, 0.125, "duration: expected more than the flash's onset, 4.0 s, got 4.0"),
+        (0.25, 1e-10, "flash_duration: expected at least 1e-6 s"),
+        (0.25, np.nan, "flash_duration: expected at least 1e-6 s"),
+    ):
+        with pytest.raises(ValueError, match=f"^{message}"):
             scenes.flash(width=8, height=8, duration=4.0, onset=onset, flash_duration=length)
     # A flash ending with the scene left a last frame of 5.6e-17 s.
     scene = scenes.flash(width=8, height=8, duration=0.3, fps=50, onset=0.05, flash_duration=0.25)
