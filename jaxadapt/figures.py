@@ -13,6 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxadapt.operators.pattanaik2000 import CURVE_LOG10_LUMINANCE
+from jaxadapt.spatial import check_whole
 
 
 def _marker(t):
@@ -81,8 +82,7 @@ def contact_sheet(frames, columns=4):
             f"frames: expected uint8 frames (K, H, W, 3), K >= 1, got {frames.dtype} of shape "
             f"{frames.shape}"
         )
-    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
-        raise ValueError(f"columns: expected a whole number >= 1, got {columns!r}")
+    check_whole("columns", columns, least=1)
     K, H, W, _ = frames.shape
     rows = -(-K // columns)
     sheet = np.full((rows * (H + 4) + 4, columns * (W + 4) + 4, 3), 255, np.uint8)

@@ -15,7 +15,6 @@ backgrounds and their halos (§6.4).
 """
 
 import functools
-import operator
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -25,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import RGB709_TO_XYZ
-from jaxadapt.spatial import check_value
+from jaxadapt.spatial import check_value, check_whole
 
 
 class Scene(NamedTuple):
@@ -65,13 +64,8 @@ def _check_frames(width, height, duration, fps):
     """Refuse a frame size that is not whole pixels >= 1, or a length and
     rate that are not positive and finite or give no frame (``ValueError``
     naming the argument)."""
-    for name, value in (("width", width), ("height", height)):
-        try:
-            whole = not isinstance(value, bool) and operator.index(value) >= 1
-        except TypeError:
-            whole = False
-        if not whole:
-            raise ValueError(f"{name}: expected a whole number of pixels >= 1, got {value!r}")
+    check_whole("width", width, least=1, unit="pixels")
+    check_whole("height", height, least=1, unit="pixels")
     check_value("duration", duration, _positive, "a positive, finite length (s)")
     check_value("fps", fps, _positive, "a positive, finite frame rate (frames/s)")
     if not 1 <= duration * fps < MAX_FRAMES + 0.5:
@@ -714,8 +708,7 @@ def checkerboard(
     """
     _check_frames(width, height, duration, fps)
     _check_luminances(white=white, black=black)
-    if isinstance(checks, bool) or not isinstance(checks, (int, np.integer)) or checks < 1:
-        raise ValueError(f"checks: expected a whole number of squares >= 1, got {checks!r}")
+    check_whole("checks", checks, least=1, unit="squares")
     half = width // 2
     y, x = np.mgrid[:height, :half]
     parity = (x * checks // half + y * checks // height) % 2

@@ -1,6 +1,7 @@
 """Spatial weights and filters on images ``(..., H, W)``."""
 
 import functools
+import operator
 
 import jax
 import jax.numpy as jnp
@@ -345,11 +346,19 @@ def check_value(name, value, ok, expected):
         raise ValueError(f"{name}: expected {expected}, got {value!r}")
 
 
-def _check_radius(radius, name="radius"):
-    """A static, non-negative whole number of pixels."""
-    if isinstance(radius, bool) or not isinstance(radius, (int, np.integer)) or radius < 0:
-        raise ValueError(f"{name}: expected a non-negative whole number of pixels, got {radius!r}")
-    return int(radius)
+def check_whole(name, value, least=0, unit=""):
+    """``value`` as an ``int``, after checking that it is a whole number
+    (anything with ``__index__``: Python, NumPy and JAX integers, not a bool
+    nor a float) of at least ``least``; ``ValueError`` naming ``name``,
+    with ``unit`` (e.g. ``"pixels"``) in the message, otherwise."""
+    try:
+        whole = not isinstance(value, bool) and operator.index(value) >= least
+    except TypeError:
+        whole = False
+    if not whole:
+        of = f" of {unit}" if unit else ""
+        raise ValueError(f"{name}: expected a whole number{of} >= {least}, got {value!r}")
+    return operator.index(value)
 
 
 def as_image(image, name="image"):
@@ -450,7 +459,7 @@ def box_filter(image, radius):
     4.0
     """
     image = as_image(image)
-    r = _check_radius(radius)
+    r = check_whole("radius", radius, unit="pixels")
     w = 2 * r + 1
     for axis in (image.ndim - 2, image.ndim - 1):  # one axis extended at a time
         extended = jnp.take(image, _reflect_indices(image.shape[axis], r), axis=axis)
@@ -485,8 +494,7 @@ def iterated_box_filter(image, radius, passes=3):
     >>> [round(float(v) * 9, 6) for v in iterated_box_filter(impulse, 1, passes=2)[0, 2:7]]
     [1.0, 2.0, 3.0, 2.0, 1.0]
     """
-    if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 1:
-        raise ValueError(f"passes: expected a whole number >= 1, got {passes!r}")
+    check_whole("passes", passes, least=1)
     for _ in range(passes):
         image = box_filter(image, radius)
     return image
@@ -635,19 +643,18 @@ def bilateral_filter(
     if guide.shape != image.shape:
         raise ValueError(f"guide: expected the shape of image {image.shape}, got {guide.shape}")
     shape = image.shape
-    sigma_r = jnp.asarray(sigma_r, image.dtype)
-    if np.ndim(sigma_r) > len(shape) or any(
-        a not in (1, b) for a, b in zip(sigma_r.shape[::-1], shape[::-1], strict=False)
-    ):
+    try:
+        sigma_r = jnp.broadcast_to(jnp.asarray(sigma_r, image.dtype), shape)
+    except ValueError:
         raise ValueError(
-            f"sigma_r: expected a shape that broadcasts to {shape}, got {sigma_r.shape}"
-        )
+            f"sigma_r: expected a shape that broadcasts to {shape}, got {np.shape(sigma_r)}"
+        ) from None
     window = SPATIAL_WINDOWS[spatial](scale)
     g = RANGE_KERNELS[range_kernel]
     R = window.shape[0] // 2
     values = image.reshape((-1,) + shape[-2:])
     guide = guide.reshape(values.shape).astype(image.dtype)
-    sigma_r = jnp.broadcast_to(sigma_r, shape).reshape(values.shape)
+    sigma_r = sigma_r.reshape(values.shape)
     padded_values, padded_guide = _reflect_pad(values, R), _reflect_pad(guide, R)
     rows, cols = np.nonzero(window)
     taps = (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(window[rows, cols], image.dtype))

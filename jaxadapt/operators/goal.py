@@ -21,6 +21,7 @@ from jaxadapt.spatial import (
     bilateral_filter,
     box_filter,
     check_value,
+    check_whole,
     foveal_weights,
     gaussian_blur,
     lowpass_stack,
@@ -367,8 +368,7 @@ def octave_radii(scale, levels):
     (0, 1, 3, 7, 15)
     """
     check_scale(scale, least=1)
-    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
-        raise ValueError(f"levels: expected a whole number >= 2, got {levels!r}")
+    check_whole("levels", levels, least=2)
     return tuple(box_radius(scale * 2.0**i) for i in range(levels))
 
 

@@ -109,6 +109,7 @@ from jax.sharding import AxisType, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaxadapt.fitting import NEWTON_STEP
+from jaxadapt.spatial import check_whole
 
 ALL_SAME = 1
 SEPARATION = 2
@@ -816,9 +817,7 @@ def bootstrap(
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence: expected a number in (0, 1), got {confidence!r}")
-    whole = hasattr(n_resamples, "__index__") and not isinstance(n_resamples, bool)
-    if not whole or n_resamples < 2:
-        raise ValueError(f"n_resamples: expected a whole number >= 2, got {n_resamples!r}")
+    check_whole("n_resamples", n_resamples, least=2)
     args = _inputs(levels, n_yes, n_total, guess, lapse)
     fits = _fit(*args, max_steps)
     parametric = jnp.asarray(method == "parametric")

@@ -86,7 +86,7 @@ from jaxadapt.operators import jacobs2015
 from jaxadapt.operators.goal import LUMINANCE_FLOOR
 from jaxadapt.psychophysics import design
 from jaxadapt.psychophysics import trials as trial_tables
-from jaxadapt.spatial import check_value, gaussian_blur
+from jaxadapt.spatial import check_value, check_whole, gaussian_blur
 
 #: The cue terms of the brightness signal, in the order of ``weights``.
 CUES = ("afterimage", "desaturation", "blur")
@@ -787,12 +787,6 @@ def run_observer(key, protocol, stimuli, observer):
     return trials, respond(answer_key, stimuli, observer, trials)
 
 
-def _check_n(n):
-    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
-        raise ValueError(f"n_observers: expected a positive whole number, got {n!r}")
-    return int(n)
-
-
 @eqx.filter_jit
 def _simulate_observers(key, protocol, stimuli, observers):
     observers = _checked(observers, "observers")
@@ -865,7 +859,7 @@ def simulate(key, protocol, stimuli, population, n_observers):
     >>> e.responses.shape, e.excluded.shape
     ((4, 320), (4,))
     """
-    n = _check_n(n_observers)
+    n = check_whole("n_observers", n_observers, least=1)
     draw_key, trial_key = jax.random.split(key)
     return _simulate_draws(draw_key, trial_key, protocol, stimuli, population, n)
 
