@@ -10,7 +10,7 @@ about four decades):
 * ``bilateral_pattanaik_yee``: the same with the circular box and the
   exponential weight;
 * ``adaptive``: :func:`jaxadapt.operators.goal.adaptive_background`
-  (8 doublings, radii 0..127);
+  (8 sizes, radii 0, 1, 3, ..., 127: 7 doublings);
 * ``box`` and ``gaussian``: the plain local averages of Eq 6.4 (``s = 8``),
   for scale;
 * ``cv2_bilateral``: OpenCV's ``cv2.bilateralFilter`` on log10 luminance
@@ -20,12 +20,12 @@ about four decades):
 
 Each jaxadapt function is jitted and compiled first; timings block until
 the result is ready; median of ``--repeats``. Writes
-``benchmarks/results/background_<label>.json`` (``background.json`` for the
-default label).
+``benchmarks/results/background.json`` (or ``background_<label>.json``).
 
 Usage::
 
-    python benchmarks/bench_background.py [--size 1920x1080] [--repeats 5]
+    python benchmarks/bench_background.py [--size 1920x1080] [--repeats 5] [--scale 4]
+                                          [--label NAME]
 """
 
 import argparse
@@ -64,7 +64,7 @@ def main():
     parser.add_argument("--size", default="1920x1080")
     parser.add_argument("--scale", type=float, default=4.0, help="bilateral size s, pixels")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--label", default=None, help="machine label for the result file")
+    parser.add_argument("--label", default=None, help="machine label in the record and file name")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     megapixels = width * height / 1e6
@@ -99,8 +99,7 @@ def main():
     )
     record["megapixels_per_s"] = {k: megapixels / s for k, s in record["seconds"].items()}
     record["bilateral_vs_cv2"] = record["seconds"]["cv2_bilateral"] / record["seconds"]["bilateral"]
-    name = "background" if args.label is None else f"background_{args.label}"
-    path = write_result(name, record)
+    path = write_result("background", record, args.label)
     for key, value in record["megapixels_per_s"].items():
         print(f"{key:>24}: {value:8.2f} MP/s  ({record['seconds'][key] * 1e3:.1f} ms)")
     print(f"wrote {path}")

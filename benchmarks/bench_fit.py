@@ -11,8 +11,10 @@ the same datasets, and the PSEs are compared where the MLE exists.
 Usage::
 
     python benchmarks/bench_fit.py [--datasets 100000] [--peer 500] [--repeats 5]
+                                   [--label NAME]
 
-Writes ``benchmarks/results/fit.json`` (about a minute on 2 cores).
+Writes ``benchmarks/results/fit.json`` (or ``fit_<label>.json``; about a
+minute on 2 cores).
 """
 
 import argparse
@@ -64,7 +66,7 @@ def main():
     parser.add_argument("--datasets", type=int, default=100_000)
     parser.add_argument("--peer", type=int, default=500, help="datasets fitted by statsmodels")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--label", default=None, help="machine label in the record")
+    parser.add_argument("--label", default=None, help="machine label in the record and file name")
     args = parser.parse_args()
 
     levels, k, n = simulate(args.datasets)
@@ -109,7 +111,7 @@ def main():
         },
         "machine": {**machine(args.label), "load_average_1min": os.getloadavg()[0]},
     }
-    print(write_result("fit", record))
+    print(write_result("fit", record, args.label))
     for dtype, run in runs.items():
         print(
             f"{dtype}: {run['fits_per_second']:,.0f} fits/s "

@@ -47,9 +47,9 @@ optimistix's own tests).
 Usage::
 
     python benchmarks/bench_fitting.py [--observers 1000] [--peer 1000]
-                                       [--eager-peer 20] [--pairs 10]
+                                       [--eager-peer 20] [--pairs 10] [--label NAME]
 
-Writes ``benchmarks/results/fitting.json``.
+Writes ``benchmarks/results/fitting.json`` (or ``fitting_<label>.json``).
 """
 
 import argparse
@@ -182,7 +182,7 @@ def main():
     parser.add_argument(
         "--pairs", type=int, default=10, help="SciPy groups, each followed by a timed fit"
     )
-    parser.add_argument("--label", default=None, help="machine label in the record")
+    parser.add_argument("--label", default=None, help="machine label in the record and file name")
     args = parser.parse_args()
 
     load_before = os.getloadavg()[0]
@@ -344,7 +344,7 @@ def main():
             "load_average_1min": os.getloadavg()[0],
         },
     }
-    print(write_result("fitting", record))
+    print(write_result("fitting", record, args.label))
     print(
         f"float32: {args.observers} fits in {f32_s:.2f} s ({record['speedup_float32']:.1f}x); "
         f"scipy on the eager model: {eager_per_fit * 1e3:.0f} ms a fit "

@@ -13,10 +13,11 @@ against which a GPU's memory bandwidth bounds the frame rate.
 
 Usage::
 
-    python benchmarks/bench_jacobs2015.py [--size 1920x1080] [--frames 4] [--device-label cpu]
+    python benchmarks/bench_jacobs2015.py [--size 1920x1080] [--frames 4] [--repeats 3]
+                                          [--label NAME]
 
-Writes ``benchmarks/results/jacobs2015_<label>.json`` (label: the device
-label, by default the JAX backend).
+Writes ``benchmarks/results/jacobs2015_<label>.json`` (label by default the
+JAX backend).
 """
 
 import argparse
@@ -56,7 +57,7 @@ def main():
     parser.add_argument("--size", default="1920x1080", help="WIDTHxHEIGHT, pixels")
     parser.add_argument("--frames", type=int, default=4)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--device-label", default=None, help="label of the result file")
+    parser.add_argument("--label", default=None, help="machine label in the record and file name")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
 
@@ -69,7 +70,7 @@ def main():
     bytes_per_frame = 18 * 4 * width * height
     bandwidth = copy_bandwidth()
     record = {
-        "machine": machine(args.device_label),
+        "machine": machine(args.label),
         "load_average_1min": os.getloadavg()[0],  # other work sharing the machine
         "size": [width, height],
         "frames": args.frames,
@@ -82,7 +83,7 @@ def main():
         "copy_GB_per_s": bandwidth / 1e9,
         "bandwidth_fraction": bytes_per_frame * args.frames / seconds / bandwidth,
     }
-    label = args.device_label or record["machine"]["backend"]
+    label = args.label or record["machine"]["backend"]
     path = write_result(f"jacobs2015_{label}", record)
     for key, value in record.items():
         if key != "machine":

@@ -8,9 +8,12 @@ the main block) and simulates every answer. Compile time is excluded,
 results are ``block_until_ready``-ed and the median of the repeats is kept.
 Also timed: the answers alone (trial orders given), and the analysis of the
 experiment (counts and the 20,000 cumulative-Gaussian fits). In the same run,
-a NumPy peer does the same simulation vectorised over observers (a
-permutation per observer with ``Generator.permuted``, ``scipy.special.ndtr``,
-uniform draws).
+a NumPy peer simulates the answers of the same observers, vectorised over
+them: a random trial order per observer (``Generator.permuted`` of one
+counter-balanced template, whose test-first assignment it keeps), then
+``scipy.special.ndtr`` and uniform draws. It does less than the timed
+``simulate``, which also draws the observers, counter-balances each
+observer's list afresh and applies the exclusion rule.
 
 Usage::
 
@@ -134,8 +137,7 @@ def main():
         },
         "machine": {**machine(args.label), "load_average_1min": os.getloadavg()[0]},
     }
-    name = "observer" if args.label is None else f"observer_{args.label}"
-    print(write_result(name, record))
+    print(write_result("observer", record, args.label))
     j = record["jaxadapt"]
     print(
         f"{N} observers x {T} trials: {j['trials_per_second']:,.0f} trials/s "

@@ -5,9 +5,10 @@ mouth, then times:
 
 * ``jaxadapt``: one jitted :func:`jaxadapt.operators.pattanaik2000.run` over
   all frames, resident on the device (compile excluded, median of repeats);
-* ``pfstmo``: ``pfstmo_pattanaik00 -t`` on the same frames as a pfs stream
-  read from a file, minus the time of ``cat`` on the same stream (its core
-  time; Debian package ``pfstmo``).
+* ``pfstmo``: ``pfstmo_pattanaik00 -t --fps 30`` on the same frames as a
+  pfs stream read from a file, minus the time of ``cat`` on the same stream
+  (its core time, which still includes parsing and writing the pfs stream;
+  Debian package ``pfstmo``). It runs on one core: jaxadapt uses them all.
 
 With ``--background`` other than ``global`` the operator adapts per pixel
 to a local background (a per-pixel state advanced by the exact kinetics),
@@ -25,8 +26,9 @@ first is timed.
 
 Usage::
 
-    python benchmarks/bench_pattanaik2000.py [--size 1920x1080] [--frames 60]
-                                             [--background global]
+    python benchmarks/bench_pattanaik2000.py [--size 1920x1080] [--frames 60] [--repeats 5]
+                                             [--background global] [--label NAME]
+                                             [--no-pfstmo]
 
 Writes ``benchmarks/results/pattanaik2000_<label>_<size>[_<background>].json``.
 """
@@ -99,8 +101,13 @@ def time_jaxadapt_retained(args):
     return json.loads(done.stdout.splitlines()[-1])
 
 
+def pfstmo_options(local):
+    """The options given to ``pfstmo_pattanaik00``."""
+    return ["-t", "--fps", str(FPS)] + (["--local"] if local else [])
+
+
 def time_pfstmo(frames, repeats, local=False):
-    """Core seconds of ``pfstmo_pattanaik00 -t`` (``--local`` if ``local``) on
+    """Core seconds of ``pfstmo_pattanaik00`` with :func:`pfstmo_options` on
     the frames, or None if absent."""
     if shutil.which("pfstmo_pattanaik00") is None or shutil.which("pfsin") is None:
         return None
@@ -122,8 +129,9 @@ def time_pfstmo(frames, repeats, local=False):
 
             return go
 
-        options = ["-t", "--fps", str(FPS)] + (["--local"] if local else [])
-        operator = median_seconds(pipe("pfstmo_pattanaik00", *options), repeats=repeats)
+        operator = median_seconds(
+            pipe("pfstmo_pattanaik00", *pfstmo_options(local)), repeats=repeats
+        )
         copy = median_seconds(pipe("cat"), repeats=repeats)
     return operator - copy
 
@@ -133,7 +141,7 @@ def main():
     parser.add_argument("--size", default="1920x1080")
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--label", default=None, help="machine label for the result file")
+    parser.add_argument("--label", default=None, help="machine label in the record and file name")
     parser.add_argument("--no-pfstmo", action="store_true", help="time jaxadapt only")
     parser.add_argument(
         "--background", default="global", help="global, or a local background (e.g. gaussian)"
@@ -160,7 +168,7 @@ def main():
         "machine": machine(args.label),
         "size": [width, height],
         "background": args.background,
-        "pfstmo_options": "-t --local" if local else "-t",
+        "pfstmo_options": " ".join(pfstmo_options(local)),
         "frames": args.frames,
         "repeats": args.repeats,
         "jaxadapt_seconds": ours,

@@ -78,11 +78,12 @@ def _commit():
     return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
 
 
-def write_result(name, record):
-    """Write ``record`` to ``benchmarks/results/<name>.json``, with when it
-    was recorded (UTC) and the code's commit, and return the path."""
+def write_result(name, record, label=None):
+    """Write ``record`` to ``benchmarks/results/<name>.json`` (``<name>_<label>.json``
+    with a ``label``), with when it was recorded (UTC) and the code's commit,
+    and return the path."""
     RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"{name}.json"
+    path = RESULTS / (f"{name}.json" if label is None else f"{name}_{label}.json")
     stamp = {
         "recorded": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "commit": _commit(),

@@ -6,13 +6,15 @@ new pages (``mmap``) and hands them back to the system when they are freed,
 so each call's buffers are new pages that the kernel maps and zeroes one
 4 KB page at a time on first touch. For a batch of frames this costs as
 much as the computation: one call of ``pattanaik2000.run`` on 60 frames of
-1920x1080 took 4.4 s of system time in 729,000 page faults on the 2-core
+1920x1080 took 6.8 s of system time in 972,000 page faults on the 2-core
 machine of ``benchmarks/`` (``getrusage`` around the call, recorded by
-``benchmarks/bench_pattanaik2000.py``; see the README's performance section).
+``benchmarks/bench_pattanaik2000.py`` in
+``results/pattanaik2000_cpu-2core_1920x1080.json``; see the README's
+performance section).
 
 :func:`retain_freed_memory` asks glibc to serve every block from its heap and
 to keep what is freed there for the next call: the same call then takes no
-page faults and 2.7 times less wall time (1.4 s against 4.0 s). The price
+page faults and 3.8 times less wall time (1.16 s against 4.40 s). The price
 is that the process keeps its peak memory until it exits, as JAX keeps GPU
 memory by default.
 The command line turns it on; a library user opts in with one call.
