@@ -4,15 +4,18 @@ Every error that comes from the user's input (arguments, files, values)
 prints one line on stderr and exits with status 2. Outputs are written into
 a staging folder inside ``--out`` and moved into place only when the whole
 run has succeeded, so a failed run leaves nothing half-written and
-overwrites nothing. An interrupted run (Ctrl-C, or SIGTERM as a job
-scheduler sends it) is a failed one: it removes its staging folder, prints
-one line and exits with status 130 (143 for SIGTERM), as a shell reports
-such a signal.
+overwrites nothing. An interrupted run (Ctrl-C, SIGTERM as a job
+scheduler sends it, or SIGHUP as a closed terminal does) is a failed one: it
+removes its staging folder, prints one line and exits with status 130 (143
+for SIGTERM, 129 for SIGHUP), as a shell reports such a signal. A signal
+that comes while the outputs are moved into place waits until they all are,
+and the line says so.
 """
 
 import argparse
 import contextlib
 import csv
+import errno
 import os
 import re
 import shutil
@@ -43,7 +46,7 @@ FILE_FPS = 30.0
 BACKGROUND_SCALE = 8.0
 #: Names of the files ``jaxadapt render`` writes.
 RENDER_OUTPUTS = re.compile(
-    r"frame_\d{5}\.(png|exr|pfm)|video\.mp4|contact_sheet\.png|adaptation\.png|diagnostics\.csv"
+    r"frame_\d{5,}\.(png|exr|pfm)|video\.mp4|contact_sheet\.png|adaptation\.png|diagnostics\.csv"
 )
 #: Names of the files ``jaxadapt psychometric fit`` writes.
 FIT_OUTPUTS = re.compile(r"fits\.csv|group_test\.csv|psychometric\.png|pse\.png")
@@ -384,7 +387,7 @@ GROUP_TEST_COLUMNS = (
 
 
 @contextlib.contextmanager
-def _staged(out, replaces=None, keep=()):
+def _staged(out, console, replaces=None, keep=()):
     """Yield a staging folder inside ``out``; move its files into ``out`` on success.
 
     With ``replaces`` (a command's pattern of output names), the names this
@@ -399,6 +402,14 @@ def _staged(out, replaces=None, keep=()):
     either way. ``out`` is resolved first: through a ``..`` after a folder
     that does not exist (``new/../out``), the folders made would be other
     than the ones named, and a failed run left ``out`` behind.
+
+    A folder in ``out`` with the name of an output is refused: with
+    ``replaces``, before anything is done; otherwise when it is found, as
+    the files are moved (before any is). Staging
+    folders that runs killed outright (SIGKILL) left in ``out`` are named in
+    a warning on ``console``: they may also be those of runs still going.
+    A full device is said as such, naming ``out``. Signals are deferred
+    while the files are moved (:func:`_signals_deferred`).
     """
     out = out.resolve()
     keep = {Path(p).resolve() for p in keep}
@@ -416,44 +427,72 @@ def _staged(out, replaces=None, keep=()):
 
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: expected a folder, got the file {out}")
+    if replaces is not None and out.is_dir():
+        _refuse_folders(out, [p.name for p in out.iterdir() if replaces.fullmatch(p.name)])
     try:
         out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".jaxadapt-", dir=out))
+        staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
     except OSError as e:
         unmake()
         raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
+    left = sorted(p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging)
+    if left:
+        console.print(
+            f"warning: {out} holds {', '.join(left)}: the staging folders of runs that were "
+            "killed (remove them) or are still running"
+        )
+    moved = False
     try:
-        try:
-            yield staging
+        yield staging
+        with _signals_deferred():
             if _SIGNALLED:  # an interrupt that Python ignored (_interruptible)
                 raise KeyboardInterrupt(_SIGNALLED[0])
-        except BaseException:
+            _move_into_place(staging, out, replaces, keep)
+            moved = True
+    except BaseException as e:
+        if not moved:
             unmake()
-            raise
-        written = sorted(path.name for path in staging.iterdir())
-        earlier = []
-        if replaces is not None:
-            manifest = MANIFESTS[replaces]
-            with contextlib.suppress(OSError, UnicodeDecodeError):
-                earlier = (out / manifest).read_text().splitlines()
-            (staging / manifest).write_text("".join(f"{name}\n" for name in written))
-        names = sorted(path.name for path in staging.iterdir())
-        # Only a file can be replaced by a file: a folder in the way would
-        # stop the moves half-way, the folder holding two runs' outputs.
-        for name in names:
-            if (out / name).is_dir():
-                raise UsageError(
-                    f"--out: {out / name} is a folder where this run writes a file; "
-                    "move it away, or choose another --out"
-                )
-        for name in names:
-            (staging / name).replace(out / name)
-        for name in set(earlier) - set(written):
-            path = out / name
-            if replaces.fullmatch(name) and path.is_file() and path.resolve() not in keep:
-                path.unlink()
+        if isinstance(e, OSError) and e.errno == errno.ENOSPC:
+            raise UsageError(f"--out: no space left on the device of {out}") from None
+        raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+#: Prefix of the staging folders that :func:`_staged` makes in ``--out``.
+STAGING_PREFIX = ".jaxadapt-"
+
+
+def _refuse_folders(out, names):
+    """A UsageError if a folder in ``out`` has one of ``names``: only a file
+    can be replaced by a file, and a folder in the way would stop the moves
+    half-way, the folder holding two runs' outputs."""
+    for name in names:
+        if (out / name).is_dir():
+            raise UsageError(
+                f"--out: {out / name} is a folder where this run writes a file; "
+                "move it away, or choose another --out"
+            )
+
+
+def _move_into_place(staging, out, replaces, keep):
+    """Move the files of ``staging`` into ``out``, with the manifest of
+    ``replaces`` and the removal of an earlier run's files (:func:`_staged`)."""
+    written = sorted(path.name for path in staging.iterdir())
+    earlier = []
+    if replaces is not None:
+        manifest = MANIFESTS[replaces]
+        with contextlib.suppress(OSError, UnicodeDecodeError):
+            earlier = (out / manifest).read_text().splitlines()
+        (staging / manifest).write_text("".join(f"{name}\n" for name in written))
+    names = sorted(path.name for path in staging.iterdir())
+    _refuse_folders(out, names)
+    for name in names:
+        (staging / name).replace(out / name)
+    for name in set(earlier) - set(written):
+        path = out / name
+        if replaces.fullmatch(name) and path.is_file() and path.resolve() not in keep:
+            path.unlink()
 
 
 def _check_options(args):
@@ -500,6 +539,21 @@ def _check_options(args):
             raise UsageError(str(error)) from None
     if args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
+
+
+def _check_scale_fits(scale, size):
+    """Refuse a ``--background-scale`` beyond the larger side of frames of
+    ``size (H, W)``, pixels. Such a background is close to the mean of the
+    mirror-extended frame (``--background arithmetic``), and the filters'
+    memory and time grow with the scale, not the frame: a scale of 1e9 on a
+    1x1 frame took the machine's 24 GB and was killed, 1e5 on 64x48 took
+    677 MB and 17 s."""
+    if scale is not None and scale > max(size):
+        raise UsageError(
+            f"--background-scale: expected at most {max(size)} pixels, the frames' larger "
+            f"side (beyond it a background is close to the frame's mean: --background "
+            f"arithmetic), got {scale:g}"
+        )
 
 
 def _source(args):
@@ -589,6 +643,7 @@ def render(args, console):
     _check_options(args)
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
+    _check_scale_fits(args.background_scale, source.frames(np.arange(1)).shape[1:3])
     if args.gaze is not None:
         source = pipeline.with_gaze(source, args.gaze)
     # The nominal rate: frames split at a flash's edges are shorter, none longer.
@@ -600,12 +655,13 @@ def render(args, console):
 
     out = args.out
     T = len(source.times)
+    digits = max(5, len(str(T - 1)))  # frame files sort in order
     contact_idx = set(range(min(4, T))) | set(
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )
     contact, tables = [], []
     inputs = [*args.files, *([args.gaze] if args.gaze else [])]
-    with _staged(out, replaces=RENDER_OUTPUTS, keep=inputs) as staging:
+    with _staged(out, console, RENDER_OUTPUTS, keep=inputs) as staging:
         with contextlib.ExitStack() as stack:
             send_video = (
                 stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
@@ -619,12 +675,13 @@ def render(args, console):
             for idx, linear, table in pipeline.chunks(op, params, source, args.chunk, key):
                 coded = display.to_uint8(encode(linear))
                 for k, i in enumerate(idx):
+                    name = f"frame_{i:0{digits}d}"
                     if "png" in formats:
-                        io.write_image(staging / f"frame_{i:05d}.png", coded[k], encoding)
+                        io.write_image(staging / f"{name}.png", coded[k], encoding)
                     if "exr" in formats:
-                        io.write_image(staging / f"frame_{i:05d}.exr", linear[k])
+                        io.write_image(staging / f"{name}.exr", linear[k])
                     if "pfm" in formats:
-                        io.write_image(staging / f"frame_{i:05d}.pfm", linear[k])
+                        io.write_image(staging / f"{name}.pfm", linear[k])
                     if i in contact_idx:
                         contact.append(coded[k])
                 send_video(coded)
@@ -729,7 +786,7 @@ def psychometric_fit(args, console):
     written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
     if not tested:
         written.remove("group_test.csv")
-    with _staged(out, replaces=FIT_OUTPUTS, keep=[args.trials]) as staging:
+    with _staged(out, console, FIT_OUTPUTS, keep=[args.trials]) as staging:
         # In float64, as statsmodels and MATLAB fit: in float32 the
         # log-likelihood of a few thousand trials a level is off by 0.01
         # (binomial terms that cancel), and its fits stop at slopes whose
@@ -855,7 +912,7 @@ def psychometric_simulate(args, console):
         "excluded": np.asarray(experiment.excluded),
     }
     d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
-    with _staged(args.out) as staging:
+    with _staged(args.out, console) as staging:
         n_rows = obs.write_trials(staging / "trials.csv", protocol, experiment)
         with open(staging / "observers.csv", "w", newline="") as f:
             writer = csv.writer(f)
@@ -898,17 +955,20 @@ def main(argv=None):
             elif args.command == "psychometric":
                 psychometric_fit(args, console)
     except KeyboardInterrupt as e:
-        print("jaxadapt: interrupted; nothing was written to --out", file=sys.stderr)
+        done = "every output was" if isinstance(e, _InterruptedAfterwards) else "nothing was"
+        print(f"jaxadapt: interrupted; {done} written to --out", file=sys.stderr)
         return 128 + (e.args[0] if e.args else signal.SIGINT)
+    except MemoryError:
+        print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)
+        return 2
     except (UsageError, ValueError, FileNotFoundError, OSError, eqx.EquinoxRuntimeError) as e:
         print(f"jaxadapt: error: {_message(e)}", file=sys.stderr)
         return 2
     except jax.errors.JaxRuntimeError as e:
         if "RESOURCE_EXHAUSTED" not in str(e):
             raise
-        command = args.action if args.command == "psychometric" else args.command
         print(
-            f"jaxadapt: error: out of memory ({_message(e)}); try {_SMALLER[command]}",
+            f"jaxadapt: error: out of memory ({_message(e)}); try {_smaller(args)}",
             file=sys.stderr,
         )
         return 2
@@ -934,24 +994,54 @@ def run():
     sys.exit(status)
 
 
-#: What to make smaller when a command runs out of memory.
-_SMALLER = {
-    "render": "a smaller --chunk or --size",
-    "fit": "fewer --resamples",
-    "simulate": "fewer --observers",
-}
+def _smaller(args):
+    """What to make smaller when the command of ``args`` runs out of memory."""
+    if args.command == "render":
+        return "a smaller --chunk, --size or --background-scale"
+    return {"fit": "fewer --resamples", "simulate": "fewer --observers"}[args.action]
 
 
-#: Signals (SIGINT, SIGTERM) received while a command ran (:func:`_interruptible`).
+#: The signals that interrupt a command: Ctrl-C, a scheduler's SIGTERM, a
+#: closed terminal's SIGHUP (where the platform has it).
+_SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+#: Signals received while a command ran (:func:`_interruptible`).
 _SIGNALLED = []
+#: Set while the outputs are moved into place (:func:`_signals_deferred`).
+_DEFERRING = threading.Event()
+
+
+class _InterruptedAfterwards(KeyboardInterrupt):
+    """A signal that came while the outputs were moved into place, raised
+    once they all were."""
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Hold back the signals of :func:`_interruptible` while the body runs:
+    a signal is remembered, and raised as :class:`_InterruptedAfterwards`
+    when the body has completed (an error of the body goes first). Moving
+    the files of a long render into ``--out`` takes a while, and an
+    interrupt in it left some of the outputs of the new run beside the
+    rest of the old one's."""
+    before = len(_SIGNALLED)
+    _DEFERRING.set()
+    try:
+        yield
+    finally:
+        _DEFERRING.clear()
+    if len(_SIGNALLED) > before:
+        raise _InterruptedAfterwards(_SIGNALLED[before])
 
 
 @contextlib.contextmanager
 def _interruptible():
-    """While the body runs, SIGINT (Ctrl-C) and SIGTERM raise
-    ``KeyboardInterrupt(signum)`` and are remembered in :data:`_SIGNALLED`.
+    """While the body runs, the signals of :data:`_SIGNALS` raise
+    ``KeyboardInterrupt(signum)`` (unless deferred: :func:`_signals_deferred`)
+    and are remembered in :data:`_SIGNALLED`.
 
-    By default SIGTERM ends Python at once and the staging folder would stay
+    By default SIGTERM and SIGHUP end Python at once and the staging folder would stay
     in ``--out``; raised as an interrupt, the run cleans up as a failed one.
     Python ignores (and prints) an exception raised while it runs a
     garbage-collector callback, as JAX's is: a render went on to the end
@@ -965,10 +1055,11 @@ def _interruptible():
 
     def interrupt(signum, frame):
         _SIGNALLED.append(signum)
-        raise KeyboardInterrupt(signum)
+        if not _DEFERRING.is_set():
+            raise KeyboardInterrupt(signum)
 
     _SIGNALLED.clear()
-    previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, interrupt) for s in _SIGNALS}
     try:
         yield
     finally:

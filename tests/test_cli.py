@@ -1,10 +1,13 @@
 """The command line, end to end, on small inputs."""
 
 import csv
+import errno
+import os
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import equinox as eqx
 import imageio_ffmpeg
@@ -15,7 +18,7 @@ import pytest
 import statsmodels.api as sm
 from scipy.stats import mannwhitneyu
 
-from jaxadapt import io, runtime
+from jaxadapt import cli, io, pipeline, runtime
 from jaxadapt.cli import _message, main
 from jaxadapt.operators import pattanaik2000 as op
 
@@ -234,6 +237,85 @@ def test_a_folder_where_an_output_goes_fails_the_run_before_anything_moves(tmp_p
     _assert_one_line_error(status, err, "--out", str(out / "diagnostics.csv"), "is a folder")
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["diagnostics.csv"]
+
+
+def test_a_folder_named_as_an_output_is_refused_before_the_render(tmp_path, capsys, monkeypatch):
+    # It was found only when the rendered files were moved into place.
+    def rendered(*args, **kwargs):
+        raise AssertionError("rendered")
+
+    monkeypatch.setattr(pipeline, "chunks", rendered)
+    out = tmp_path / "out"
+    (out / "video.mp4").mkdir(parents=True)
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    _assert_one_line_error(status, err, "--out", str(out / "video.mp4"), "is a folder")
+    assert [p.name for p in out.iterdir()] == ["video.mp4"]
+
+
+def test_a_signal_while_the_outputs_move_waits_until_they_all_have(tmp_path, capsys, monkeypatch):
+    # A SIGINT after the first of the moves into --out left the new run's
+    # first files beside the rest of the earlier run's, and the message said
+    # that nothing was written.
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "b.csv").write_text("old")
+    replace = Path.replace
+
+    def interrupted_replace(self, target):
+        if not interrupted_replace.sent:
+            interrupted_replace.sent = True
+            os.kill(os.getpid(), signal.SIGINT)
+        return replace(self, target)
+
+    interrupted_replace.sent = False
+    monkeypatch.setattr(Path, "replace", interrupted_replace)
+    with pytest.raises(KeyboardInterrupt) as caught:
+        with cli._interruptible(), cli._staged(out, None) as staging:
+            for name in ("a.csv", "b.csv", "c.csv"):
+                (staging / name).write_text("new")
+    assert isinstance(caught.value, cli._InterruptedAfterwards)
+    assert caught.value.args == (signal.SIGINT,)
+    assert {p.name: p.read_text() for p in out.iterdir()} == dict.fromkeys(
+        ("a.csv", "b.csv", "c.csv"), "new"
+    )
+
+
+def test_staging_folders_left_by_killed_runs_are_named(tmp_path, capsys):
+    out = tmp_path / "out"
+    (out / ".jaxadapt-killed").mkdir(parents=True)
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    assert status == 0
+    assert "warning:" in err and ".jaxadapt-killed" in err and "killed" in err
+
+
+def test_a_full_device_is_said_naming_out(tmp_path, capsys, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(io, "write_columns", full)
+    out = tmp_path / "out"
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    _assert_one_line_error(status, err, "--out: no space left on the device of", str(out))
+    assert not out.exists()
+
+
+def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_path, capsys):
+    # 1e9 on a 1x1 frame took the machine's 24 GB; 1e5 on 64x48, 677 MB.
+    out = tmp_path / "o"
+    args = ["render", "--scene", "flash", "--size", "48x32", "--duration", "0.3"]
+    status, err = _run(capsys, *args, "--background", "box", "--background-scale", "1000",
+                       "--out", str(out))  # fmt: skip
+    _assert_one_line_error(status, err, "--background-scale: expected at most 48 pixels", "1000")
+    assert not out.exists()
+    status, _ = _run(capsys, *args, "--background", "gaussian", "--background-scale", "48",
+                     "--out", str(out))  # fmt: skip
+    assert status == 0
+
+
+def test_frame_files_beyond_99999_are_outputs_too():
+    # frame_100000.png did not match, so a later run never removed it.
+    assert cli.RENDER_OUTPUTS.fullmatch("frame_100000.png")
+    assert not cli.RENDER_OUTPUTS.fullmatch("frame_0001.png")
 
 
 def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write(
@@ -566,6 +648,18 @@ def test_out_of_memory_names_what_to_make_smaller(tmp_path, capsys, monkeypatch)
     assert not (tmp_path / "o").exists()
 
 
+def test_a_memory_error_is_one_line_too(tmp_path, capsys, monkeypatch):
+    # NumPy's MemoryError (a filter's index arrays) printed a traceback.
+    def exhausted(*args, **kwargs):
+        raise MemoryError("Unable to allocate 2.02 GiB")
+
+    monkeypatch.setattr(pipeline, "chunks", exhausted)
+    out = tmp_path / "o"
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    _assert_one_line_error(status, err, "out of memory", "--chunk, --size or --background-scale")
+    assert not out.exists()
+
+
 def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
     # "no" up to 0, "yes" from 0.15: any PSE between fits. The bootstrap of
     # the prior's near-step curve gave (0.055, 0.094) and no warning; data
@@ -734,11 +828,13 @@ def test_psychometric_simulate_bad_input(tmp_path, capsys, args, words):
     [
         (signal.SIGINT, ["render", "--scene", "tunnel", "--size", "320x180"]),
         (signal.SIGTERM, ["render", "--scene", "tunnel", "--size", "320x180"]),
+        (signal.SIGHUP, ["render", "--scene", "tunnel", "--size", "320x180"]),
         (signal.SIGTERM, ["psychometric", "fit", "TRIALS", "--resamples", "3000"]),
     ],
 )
 def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command):
-    # Ctrl-C (SIGINT) and a scheduler's SIGTERM, sent once the run has made
+    # Ctrl-C (SIGINT), a scheduler's SIGTERM and a closed terminal's SIGHUP
+    # (which left the staging folder behind), sent once the run has made
     # its staging folder: one line, the shell's status 128 + signal, and
     # neither the staging folder nor the --out it made remain. A fit makes
     # its staging folder before fitting (it checked --out after the fit);
