@@ -87,6 +87,11 @@ def _positive(text):
 #: beyond float32 (1e-300 s, 1e300 s) gave black frames or a message about
 #: ``dt`` that did not name ``--fps``.
 FPS_RANGE = (1e-5, 1e6)
+#: The lowest frame rate of ``video.mp4``, frames/s (a frame every 2.8 h).
+#: The ffmpeg of imageio-ffmpeg failed to write MP4 below about 2.6e-5
+#: ("Error submitting a packet to the muxer: Not yet implemented"), for
+#: some rates only with enough frames (2.5e-5 wrote 3 frames, not 300).
+MP4_MIN_FPS = 1e-4
 
 
 def _frame_rate(text):
@@ -648,6 +653,11 @@ def render(args, console):
         source = pipeline.with_gaze(source, args.gaze)
     # The nominal rate: frames split at a flash's edges are shorter, none longer.
     fps = 1.0 / float(np.max(source.dt))
+    if "mp4" in formats and fps < MP4_MIN_FPS:
+        raise UsageError(
+            f"--fps: a video (--format mp4, a default) needs at least {MP4_MIN_FPS:g} frames/s, "
+            f"got {fps:g}; choose --format png, exr or pfm"
+        )
     op, params, plot, encoded = _operator(args, source, fps)
     # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
     encoding = "gamma" if encoded else args.encoding or "srgb"

@@ -13,17 +13,22 @@ import re
 import tempfile
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
+import colour
 import numpy as np
 import OpenImageIO as oiio
 
-#: File endings read as HDR input.
-HDR_SUFFIXES = (".exr", ".hdr", ".pic", ".pfm", ".tif", ".tiff")
 _FLOAT_FORMATS = ("float", "half", "double")
+#: The colour space of jaxadapt's frames: linear BT.709 primaries, D65 white.
+_BT709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
+#: Its chromaticities as files list them: red, green, blue and white x, y.
+BT709_CHROMATICITIES = (*np.ravel(_BT709.primaries), *_BT709.whitepoint)
 
 
 def read_hdr(path):
-    """Read a linear HDR image as a float32 ``(H, W, 3)`` array.
+    """Read a linear HDR image as a float32 ``(H, W, 3)`` array of linear
+    BT.709 RGB (D65 white), top row first, left column first.
 
     Parameters
     ----------
@@ -32,46 +37,73 @@ def read_hdr(path):
         colour channels are found by name (:func:`rgb_channels`): R, G and
         B, or a luminance Y taken as grey; alpha and other channels are
         dropped. Of a multi-part EXR, the first part that has them is read.
-        A Radiance file's pixels are divided by its exposure
+        The pixel values are taken as they are: cd/m2 once the caller's
+        calibration (``--multiplier``) is applied. An EXR's
+        ``whiteLuminance`` attribute is not used; OpenImageIO multiplies a
+        PFM's pixels by the magnitude of its header's scale. A Radiance
+        file's pixels are divided by its exposure
         (:func:`radiance_exposure`).
 
     Returns
     -------
     numpy array, float32, (H, W, 3)
-        The image's display window (:func:`display_window`).
+        The image's display window (:func:`display_window`), turned as its
+        ``Orientation`` says (:func:`reorient`; a Radiance file's is its
+        resolution line, ``+Y H +X W`` for rows stored bottom to top). Its
+        RGB is converted to BT.709 (:func:`bt709_matrix`) from the primaries
+        of an EXR's ``chromaticities`` attribute or a Radiance file's
+        ``PRIMARIES=`` line; without them, as for PFM and TIFF, it is taken
+        as BT.709. A grey (Y) image is not converted: its Y is the
+        luminance in any primaries.
 
     Raises
     ------
     FileNotFoundError
         The file does not exist.
     ValueError
-        The file cannot be read, or does not hold floating-point data.
+        The file cannot be read, does not hold floating-point data, or its
+        header is invalid (channels, orientation, primaries, exposure).
     """
     path = Path(path)
-    with _hdr_image(path) as (image, spec, channels):
+    with _hdr_image(path) as (image, header):
         pixels = image.read_image(format="float")
         if pixels is None:
             raise ValueError(f"{path}: cannot read pixels ({_one_line(image.geterror())})")
-        is_rgbe = image.format_name() == "hdr"
+    spec = header.spec
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
-    pixels = display_window(pixels[..., channels], spec)
-    if is_rgbe:
-        pixels = pixels / np.float32(radiance_exposure(path))
-    return pixels
+    pixels = display_window(pixels[..., header.channels], spec) / np.float32(header.exposure)
+    if header.to_bt709 is not None:
+        pixels = pixels @ header.to_bt709.T.astype(np.float32)
+    return np.ascontiguousarray(reorient(pixels, header.orientation))
 
 
 def hdr_size(path):
-    """``(width, height)`` of the image :func:`read_hdr` would read, from the
-    file's header alone, with the same errors."""
-    with _hdr_image(Path(path)) as (_, spec, _):
-        return spec.full_width, spec.full_height
+    """``(width, height)`` of the image :func:`read_hdr` would read (turned
+    as its orientation says), from the file's header alone.
+
+    It runs :func:`read_hdr`'s checks of the header (channels, data type,
+    orientation, primaries, Radiance exposure) and raises the same errors;
+    pixel data that are truncated or corrupt are found only by reading them.
+    """
+    with _hdr_image(Path(path)) as (_, header):
+        width, height = header.spec.full_width, header.spec.full_height
+        return (height, width) if header.orientation > 4 else (width, height)
+
+
+class _Header(NamedTuple):
+    """What :func:`read_hdr` takes from an HDR file's header (:func:`_header`)."""
+
+    spec: oiio.ImageSpec  # of the part read
+    channels: list  # indices of its R, G and B (:func:`rgb_channels`)
+    orientation: int  # EXIF, 1 to 8 (:func:`reorient`)
+    exposure: float  # the pixels' divisor (:func:`radiance_exposure`)
+    to_bt709: np.ndarray | None  # RGB to BT.709 (:func:`bt709_matrix`), None if BT.709
 
 
 @contextlib.contextmanager
 def _hdr_image(path):
-    """The open OpenImageIO input of an HDR file at its colour part, that
-    part's spec and its colour channels (:func:`_colour_part`), after the
-    checks of :func:`read_hdr`; closed after the block."""
+    """The open OpenImageIO input of an HDR file at its colour part and the
+    file's :class:`_Header` (:func:`_header`); closed after the block."""
     if path.is_dir():
         raise ValueError(f"{path}: expected an HDR image file, got a folder")
     if not path.is_file():
@@ -86,16 +118,100 @@ def _hdr_image(path):
     if image is None:
         raise ValueError(f"{path}: cannot read as an image ({_one_line(oiio.geterror())})")
     try:
-        spec, channels = _colour_part(image, path)
-        kind = str(spec.format)
-        if kind not in _FLOAT_FORMATS and image.format_name() != "hdr":
-            raise ValueError(
-                f"{path}: expected HDR data (float EXR, Radiance HDR, PFM or float TIFF), "
-                f"got {kind} {image.format_name()}"
-            )
-        yield image, spec, channels
+        yield image, _header(image, path)
     finally:
         image.close()
+
+
+def _header(image, path):
+    """The checked :class:`_Header` of an open HDR file ``image``, left at
+    its colour part (:func:`_colour_part`): the one check of a file's header
+    that :func:`read_hdr` and :func:`hdr_size` share."""
+    spec, channels = _colour_part(image, path)
+    kind, is_rgbe = str(spec.format), image.format_name() == "hdr"
+    if kind not in _FLOAT_FORMATS and not is_rgbe:
+        raise ValueError(
+            f"{path}: expected HDR data (float EXR, Radiance HDR, PFM or float TIFF), "
+            f"got {kind} {image.format_name()}"
+        )
+    lines = _radiance_header(path) if is_rgbe else []
+    chromaticities = (
+        radiance_primaries(lines, path) if is_rgbe else spec.getattribute("chromaticities")
+    )
+    is_grey = len(set(channels)) == 1
+    return _Header(
+        spec,
+        channels,
+        _orientation(spec, path),
+        radiance_exposure(lines, path),
+        None if is_grey else bt709_matrix(chromaticities, path),
+    )
+
+
+def _orientation(spec, path):
+    """The EXIF orientation (1 to 8) of an image's ``spec``, 1 when it has none."""
+    orientation = spec.get_int_attribute("Orientation", 1)
+    if not 1 <= orientation <= 8:
+        raise ValueError(f"{path}: expected an Orientation of 1 to 8 (EXIF), got {orientation}")
+    return orientation
+
+
+#: Whether rows and columns are reversed (after the transposition of 5 to 8)
+#: to display orientations 1 to 4 and 5 to 8 (EXIF 2.3, tag 274).
+_FLIPS = ((False, False), (False, True), (True, True), (True, False))
+
+
+def reorient(pixels, orientation):
+    """The displayed image of ``pixels`` ``(H, W, C)`` stored with an EXIF
+    ``orientation`` (1 to 8), turned as ``oiiotool --reorient`` turns it.
+
+    1 is the displayed image; 2 mirrored left to right; 3 turned 180
+    degrees; 4 upside down; 5 transposed (rows stored as columns); 6 to be
+    turned 90 degrees clockwise; 7 transposed and turned 180; 8 to be
+    turned 90 degrees counterclockwise. Orientations 5 to 8 swap width and
+    height.
+    """
+    if orientation > 4:
+        pixels = pixels.swapaxes(0, 1)
+    rows, cols = _FLIPS[(orientation - 1) % 4]
+    return pixels[:: -1 if rows else 1, :: -1 if cols else 1]
+
+
+def bt709_matrix(chromaticities, path):
+    """The matrix ``M`` that takes linear RGB of a file's primaries to
+    linear BT.709 RGB, ``rgb709 = M @ rgb``; None when they are BT.709's.
+
+    ``chromaticities`` are 8 numbers: the CIE 1931 x, y of the red, green
+    and blue primaries and of the white (an EXR's ``chromaticities``
+    attribute, a Radiance ``PRIMARIES=`` line), or None (BT.709). Within
+    1e-4 of BT.709's (D65 white) they are BT.709's. The matrix is the file's
+    RGB to XYZ (from the primaries and white, normalised so that the white
+    has Y = 1: SMPTE RP 177), a Bradford chromatic adaptation from the
+    file's white to D65 where they differ, then XYZ to BT.709, computed by
+    colour-science. A D65 white keeps every pixel's XYZ, its luminance Y
+    included; another keeps the Y of greys, which stay grey, and changes
+    that of colours slightly (1.5 % at most on the ColorChecker, ACES
+    AP0's D60 to D65). Bradford, as OpenColorIO's ACES configuration (and
+    OpenImageIO's ``colorconvert``) converts ACES2065-1 to BT.709.
+    """
+    if chromaticities is None:
+        return None
+    xy = np.ravel(np.asarray(chromaticities, dtype=np.float64))
+    if xy.size == 8 and np.allclose(xy, BT709_CHROMATICITIES, rtol=0, atol=1e-4):
+        return None
+    if not (
+        xy.size == 8
+        and np.isfinite(xy).all()
+        and xy[7] > 0
+        and abs(np.linalg.det(np.c_[xy[:6].reshape(3, 2), np.ones(3)])) > 1e-6
+    ):
+        raise ValueError(
+            f"{path}: expected chromaticities of three primaries that span a triangle and a "
+            f"white (8 numbers: x, y of red, green, blue, white; white y > 0), got "
+            f"{', '.join(f'{v:g}' for v in xy)}"
+        )
+    space = colour.RGB_Colourspace(str(path), xy[:6].reshape(3, 2), xy[6:])
+    return np.asarray(colour.matrix_RGB_to_RGB(space, _BT709, "Bradford"))
 
 
 def display_window(pixels, spec):
@@ -171,34 +287,73 @@ def _one_line(message):
     return "; ".join(line.strip() for line in message.splitlines() if line.strip())
 
 
-def radiance_exposure(path):
-    """The product of a Radiance HDR file's ``EXPOSURE`` header lines (1 without any).
+def _radiance_header(path):
+    """The lines of a Radiance HDR file's header (bytes, stripped), up to
+    the empty line that ends it."""
+    lines = []
+    with open(path, "rb") as f:
+        for line in iter(f.readline, b""):
+            line = line.strip()
+            if not line:
+                break
+            lines.append(line)
+    return lines
+
+
+def _header_numbers(line, count, path):
+    """The ``count`` numbers after the ``=`` of a Radiance header ``line``."""
+    try:
+        numbers = [float(word) for word in line.partition(b"=")[2].split()]
+    except ValueError:
+        numbers = []
+    if len(numbers) != count or not all(map(math.isfinite, numbers)):
+        raise ValueError(
+            f"{path}: expected {count} number{'s' * (count > 1)} in the header line "
+            f"{line.decode(errors='replace')!r}"
+        )
+    return numbers
+
+
+def radiance_exposure(lines, path):
+    """The product of the ``EXPOSURE`` lines among a Radiance HDR file's
+    header ``lines`` (:func:`_radiance_header`; 1 without any).
 
     A Radiance picture's pixel values are the radiance times every exposure
     applied to it since it was made (``pfilt``, ``pcomb``), each recorded as
     an ``EXPOSURE=`` line; the radiance is the pixel value over their
     product (Ward, *The RADIANCE Lighting Simulation and Rendering System*,
     file formats). OpenImageIO reports only the last line
-    (``hdr:exposure``), and does not apply it.
+    (``hdr:exposure``), and does not apply it. ``path`` names the file in
+    errors.
     """
     exposure = 1.0
-    with open(path, "rb") as f:
-        for line in iter(f.readline, b""):
-            line = line.strip()
-            if not line:  # the header ends with an empty line
-                break
-            if line.startswith(b"EXPOSURE="):
-                try:
-                    value = float(line[len(b"EXPOSURE=") :])
-                except ValueError:
-                    value = math.nan
-                if not (math.isfinite(value) and value > 0):
-                    raise ValueError(
-                        f"{path}: expected a positive number in the header line "
-                        f"{line.decode(errors='replace')!r}"
-                    )
-                exposure *= value
+    for line in lines:
+        if line.startswith(b"EXPOSURE="):
+            (value,) = _header_numbers(line, 1, path)
+            if value <= 0:
+                raise ValueError(
+                    f"{path}: expected a positive number in the header line "
+                    f"{line.decode(errors='replace')!r}"
+                )
+            exposure *= value
     return exposure
+
+
+def radiance_primaries(lines, path):
+    """The chromaticities of the last ``PRIMARIES=`` line among a Radiance
+    HDR file's header ``lines`` (8 numbers: x, y of red, green, blue and
+    white, as :func:`bt709_matrix` takes them), or None without one.
+
+    OpenImageIO does not report them. (Radiance's own primaries without
+    the line, white E and green x 0.29, are close to BT.709's, which
+    OpenImageIO and :func:`read_hdr` assume.) ``path`` names the file in
+    errors.
+    """
+    primaries = None
+    for line in lines:
+        if line.startswith(b"PRIMARIES="):
+            primaries = _header_numbers(line, 8, path)
+    return primaries
 
 
 @contextlib.contextmanager

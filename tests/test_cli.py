@@ -312,6 +312,19 @@ def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_pa
     assert status == 0
 
 
+def test_a_frame_rate_too_low_for_a_video_is_refused_before_the_render(tmp_path, capsys):
+    # ffmpeg failed to write it after the whole render.
+    image = tmp_path / "in.exr"
+    io.write_image(image, np.ones((8, 8, 3), np.float32))
+    out = tmp_path / "o"
+    status, err = _run(capsys, "render", str(image), "--fps", "1e-5", "--out", str(out))
+    _assert_one_line_error(status, err, "--fps", "at least 0.0001 frames/s", "got 1e-05")
+    assert not out.exists()
+    status, _ = _run(capsys, "render", str(image), "--fps", "1e-5", "--format", "exr",
+                     "--out", str(out))  # fmt: skip
+    assert status == 0
+
+
 def test_frame_files_beyond_99999_are_outputs_too():
     # frame_100000.png did not match, so a later run never removed it.
     assert cli.RENDER_OUTPUTS.fullmatch("frame_100000.png")

@@ -1,5 +1,8 @@
 """HDR file input and output (OpenImageIO) against the formats' own layout."""
 
+import re
+
+import colour
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -14,15 +17,18 @@ def _gradient(height=4, width=3):
     return rows * 10.0 + cols * np.array([1.0, 2.0, 3.0], np.float32)
 
 
-def test_pfm_written_by_hand_is_read_the_right_way_up(tmp_path):
+@pytest.mark.parametrize("scale", [1.0, 2.0])
+def test_pfm_written_by_hand_is_read_the_right_way_up(tmp_path, scale):
     # The PFM format stores rows bottom to top, little endian for a negative
     # scale (https://www.pauldebevec.com/Research/HDR/PFM/); written here
-    # byte by byte, not by OpenImageIO.
+    # byte by byte, not by OpenImageIO. OpenImageIO multiplies the pixels by
+    # the scale's magnitude (as read_hdr says).
     image = _gradient()
     path = tmp_path / "hand.pfm"
     H, W = image.shape[:2]
-    path.write_bytes(b"PF\n%d %d\n-1.0\n" % (W, H) + image[::-1].astype("<f4").tobytes())
-    np.testing.assert_array_equal(io.read_hdr(path), image)
+    header = b"PF\n%d %d\n%g\n" % (W, H, -scale)
+    path.write_bytes(header + image[::-1].astype("<f4").tobytes())
+    np.testing.assert_array_equal(io.read_hdr(path), image * np.float32(scale))
 
 
 def test_radiance_exposure_lines_divide_the_pixels(tmp_path):
@@ -177,3 +183,211 @@ def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer):
     assert abs(int(np.frombuffer(luma, np.uint8)[8 * 16 + 8]) - 63) <= 1
     info = subprocess.run([ffmpeg, "-i", str(path)], capture_output=True, text=True).stderr
     assert f"yuv420p(tv, bt709/bt709/{transfer}" in info
+
+
+def _write(path, image, **attributes):
+    """Write ``image`` (H, W, C) float32 with OpenImageIO, with header ``attributes``."""
+    spec = oiio.ImageSpec(image.shape[1], image.shape[0], image.shape[2], "float")
+    if image.shape[2] == 1:
+        spec.channelnames = ("Y",)
+    for name, value in attributes.items():
+        if name == "chromaticities":
+            spec.attribute(name, oiio.TypeDesc("float[8]"), tuple(map(float, value)))
+        else:
+            spec.attribute(name, value)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(np.ascontiguousarray(image, np.float32))
+    out.close()
+
+
+#: The displayed image of one stored as ``image`` with each EXIF orientation
+#: that has its own branch (EXIF 2.3, tag 274: where the stored row 0 and
+#: column 0 are seen).
+_DISPLAYED = {
+    1: lambda image: image,
+    4: lambda image: image[::-1],  # row 0 at the bottom
+    5: lambda image: image.transpose(1, 0, 2),  # row 0 on the left, column 0 at the top
+    6: lambda image: np.rot90(image, -1),  # row 0 on the right, column 0 at the top
+    8: lambda image: np.rot90(image, 1),  # row 0 on the left, column 0 at the bottom
+}
+
+
+@pytest.mark.parametrize("suffix", [".exr", ".tif"])
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_orientation_turns_the_image_as_displayed(tmp_path, suffix, orientation):
+    # Files with an Orientation other than 1 were read as stored: upside down
+    # for 4, and with width and height swapped by hdr_size's and read_hdr's
+    # callers for 5 to 8. The reference: the displayed image where written
+    # out above, else OpenImageIO's own reorient (oiiotool --reorient).
+    stored = _gradient(4, 3)
+    path = tmp_path / f"turned{suffix}"
+    _write(path, stored, Orientation=orientation)
+    if orientation in _DISPLAYED:
+        expected = _DISPLAYED[orientation](stored)
+    else:
+        expected = oiio.ImageBufAlgo.reorient(oiio.ImageBuf(str(path))).get_pixels(oiio.FLOAT)
+    np.testing.assert_array_equal(io.read_hdr(path), expected)
+    assert io.hdr_size(path) == (expected.shape[1], expected.shape[0])
+
+
+def _rgbe(image):
+    """Radiance RGBE bytes of pixels that are whole numbers below 256 (exponent 136:
+    a value is its mantissa byte)."""
+    pixels = np.concatenate([image, np.full(image.shape[:-1] + (1,), 136)], axis=-1)
+    return pixels.astype(np.uint8).tobytes()
+
+
+@pytest.mark.parametrize(
+    "resolution, stored",
+    [
+        (b"+Y 3 +X 4", lambda image: image[::-1]),  # rows from the bottom up
+        (b"+X 4 -Y 3", lambda image: image.transpose(1, 0, 2)),  # columns from the left
+    ],
+)
+def test_radiance_resolution_line_orients_the_image(tmp_path, resolution, stored):
+    # The resolution line gives the order of the stored pixels (Radiance's
+    # resolu.c; the standard is -Y H +X W, rows from the top, each from the
+    # left). A +Y file was read upside down.
+    image = _gradient(3, 4)
+    path = tmp_path / "turned.hdr"
+    header = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + resolution + b"\n"
+    path.write_bytes(header + _rgbe(stored(image)))
+    np.testing.assert_array_equal(io.read_hdr(path), image)
+    assert io.hdr_size(path) == (4, 3)
+
+
+#: Chromaticities (red, green, blue, white x y) of OpenColorIO colour spaces.
+_PRIMARIES = {
+    "ACES2065-1": (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.077, 0.32168, 0.33767),
+    "ACEScg": (0.713, 0.293, 0.165, 0.83, 0.128, 0.044, 0.32168, 0.33767),
+    "lin_rec2020_scene": (0.708, 0.292, 0.170, 0.797, 0.131, 0.046, 0.3127, 0.3290),
+}
+
+
+def _colours():
+    """Saturated, grey and dark pixels in cd/m2, (2, 4, 3)."""
+    return np.array(
+        [
+            [[100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 100.0], [50.0, 50.0, 50.0]],
+            [[80.0, 40.0, 5.0], [3.0, 20.0, 60.0], [1e4, 1e4, 1e4], [1e-3, 2e-3, 1e-3]],
+        ],
+        np.float32,
+    )
+
+
+@pytest.mark.parametrize("space", _PRIMARIES)
+def test_exr_primaries_are_converted_to_bt709(tmp_path, space):
+    # An EXR's chromaticities were ignored: ACES AP0 red (100, 0, 0) was
+    # read as BT.709 red. The reference: OpenImageIO's colorconvert with
+    # OpenColorIO's built-in configuration (Bradford adaptation to D65).
+    path = tmp_path / "wide.exr"
+    _write(path, _colours(), chromaticities=_PRIMARIES[space])
+    expected = oiio.ImageBufAlgo.colorconvert(oiio.ImageBuf(str(path)), space, "lin_rec709_scene")
+    np.testing.assert_allclose(
+        io.read_hdr(path), expected.get_pixels(oiio.FLOAT), rtol=2e-4, atol=1e-6
+    )
+
+
+def _luminance(rgb, chromaticities):
+    """Y (cd/m2) of linear RGB of the given primaries (white Y = 1), by colour-science."""
+    xy = np.reshape(chromaticities, (4, 2))
+    return rgb @ colour.normalised_primary_matrix(xy[:3], xy[3])[1]
+
+
+@pytest.mark.parametrize("space", _PRIMARIES)
+def test_primaries_conversion_keeps_luminance(tmp_path, space):
+    # With a D65 white every pixel keeps its Y; with another (ACES: D60) the
+    # adaptation to D65 keeps the Y of greys, which stay grey.
+    colours = _colours()
+    path = tmp_path / "wide.exr"
+    _write(path, colours, chromaticities=_PRIMARIES[space])
+    image = io.read_hdr(path)
+    luminance = _luminance(image, io.BT709_CHROMATICITIES)
+    expected = _luminance(colours, _PRIMARIES[space])
+    greys = (colours == colours[..., :1]).all(axis=-1)
+    kept = greys | (_PRIMARIES[space][6:] == (0.3127, 0.3290))
+    np.testing.assert_allclose(luminance[kept], expected[kept], rtol=1e-5)
+    np.testing.assert_allclose(image[greys], np.repeat(image[greys][:, 1:2], 3, -1), rtol=1e-5)
+
+
+def test_grey_and_bt709_files_are_not_converted(tmp_path):
+    # A luminance (Y) image is grey in any primaries; BT.709's chromaticities
+    # as stored (float32) are BT.709's.
+    grey = tmp_path / "grey.exr"
+    _write(grey, _colours()[..., :1], chromaticities=_PRIMARIES["ACES2065-1"])
+    np.testing.assert_array_equal(io.read_hdr(grey), np.repeat(_colours()[..., :1], 3, -1))
+    bt709 = tmp_path / "bt709.exr"
+    _write(bt709, _colours(), chromaticities=np.float32(io.BT709_CHROMATICITIES))
+    np.testing.assert_array_equal(io.read_hdr(bt709), _colours())
+
+
+def test_radiance_primaries_line_is_converted_to_bt709(tmp_path):
+    # Radiance records its primaries as PRIMARIES= rx ry gx gy bx by wx wy,
+    # which OpenImageIO does not report: read as BT.709 before. The
+    # reference: OpenImageIO's colorconvert (OpenColorIO) of the pixels.
+    primaries = _PRIMARIES["lin_rec2020_scene"]
+    path = tmp_path / "wide.hdr"
+    line = b"PRIMARIES= " + b" ".join(b"%g" % v for v in primaries)
+    header = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n" + line + b"\n\n-Y 3 +X 4\n"
+    path.write_bytes(header + _rgbe(_gradient(3, 4)))
+    expected = oiio.ImageBufAlgo.colorconvert(
+        oiio.ImageBuf(str(path)), "lin_rec2020_scene", "lin_rec709_scene"
+    )
+    np.testing.assert_allclose(io.read_hdr(path), expected.get_pixels(oiio.FLOAT), rtol=1e-5)
+
+
+def _bad_radiance(path, line):
+    """A Radiance file at ``path`` with the header ``line``."""
+    path.write_bytes(
+        b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n" + line + b"\n\n-Y 3 +X 4\n" + _rgbe(_gradient(3, 4))
+    )
+
+
+@pytest.mark.parametrize(
+    "name, write, match",
+    [
+        (
+            "bad.hdr",
+            lambda p: _bad_radiance(p, b"EXPOSURE=abc"),
+            "expected 1 number .*'EXPOSURE=abc'",
+        ),
+        (
+            "bad.hdr",
+            lambda p: _bad_radiance(p, b"EXPOSURE=0"),
+            "expected a positive number .*'EXPOSURE=0'",
+        ),
+        (
+            "bad.hdr",
+            lambda p: _bad_radiance(p, b"PRIMARIES= 0.64 0.33"),
+            "expected 8 numbers .*PRIMARIES",
+        ),
+        (
+            "bad.hdr",
+            lambda p: _bad_radiance(p, b"PRIMARIES= 0 0 0 0 0 0 0.3127 0.329"),
+            r"expected chromaticities of three primaries .*got 0, 0, 0, 0, 0, 0, 0\.3127, 0\.329",
+        ),
+        (
+            "bad.exr",
+            lambda p: _write(
+                p, _colours(), chromaticities=(0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3, 0)
+            ),
+            r"expected chromaticities .* white y > 0",
+        ),
+        (
+            "bad.exr",
+            lambda p: _write(p, _colours(), Orientation=9),
+            "expected an Orientation of 1 to 8 .*got 9",
+        ),
+    ],
+    ids=["exposure-nan", "exposure-0", "primaries-2", "primaries-flat", "white-y0", "turn-9"],
+)
+def test_hdr_size_refuses_the_headers_read_hdr_refuses(tmp_path, name, write, match):
+    # hdr_size, with which a sequence's frames are checked before any is
+    # rendered, passed a bad EXPOSURE line that read_hdr refused only when
+    # that frame's turn came.
+    path = tmp_path / name
+    write(path)
+    for function in (io.hdr_size, io.read_hdr):
+        with pytest.raises(ValueError, match=re.escape(name) + ": " + match):
+            function(path)
