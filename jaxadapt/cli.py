@@ -413,8 +413,10 @@ def _staged(out, console, replaces=None, keep=()):
     the files are moved (before any is). Staging
     folders that runs killed outright (SIGKILL) left in ``out`` are named in
     a warning on ``console``: they may also be those of runs still going.
-    A full device is said as such, naming ``out``. Signals are deferred
-    while the files are moved (:func:`_signals_deferred`).
+    A full device is said as such, naming ``out`` (:func:`_out_of_space`).
+    Signals are deferred while the files are moved and while the folders
+    are removed (:func:`_signals_deferred`); :data:`_WRITTEN` is set once
+    the files are all in place.
     """
     out = out.resolve()
     keep = {Path(p).resolve() for p in keep}
@@ -444,24 +446,40 @@ def _staged(out, console, replaces=None, keep=()):
     if left:
         console.print(
             f"warning: {out} holds {', '.join(left)}: the staging folders of runs that were "
-            "killed (remove them) or are still running"
+            "killed (remove them) or are still running",
+            markup=False,
+            soft_wrap=True,
         )
-    moved = False
     try:
         yield staging
         with _signals_deferred():
             if _SIGNALLED:  # an interrupt that Python ignored (_interruptible)
                 raise KeyboardInterrupt(_SIGNALLED[0])
             _move_into_place(staging, out, replaces, keep)
-            moved = True
+            _WRITTEN.set()
     except BaseException as e:
-        if not moved:
-            unmake()
-        if isinstance(e, OSError) and e.errno == errno.ENOSPC:
+        full = _out_of_space(e, out)
+        with _signals_deferred():
+            if not _WRITTEN.is_set():
+                unmake()
+        if full:
             raise UsageError(f"--out: no space left on the device of {out}") from None
         raise
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        with _signals_deferred():
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def _out_of_space(error, out):
+    """Whether ``error``, raised while writing into ``out``, is a full device
+    or quota: by its ``errno``, or, for the writers that give none
+    (OpenImageIO, ffmpeg), by less than 1 MiB left on ``out``'s device."""
+    if isinstance(error, OSError) and error.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", 0)):
+        return True
+    if isinstance(error, (OSError, ValueError)):
+        with contextlib.suppress(OSError):
+            return shutil.disk_usage(out).free < 2**20
+    return False
 
 
 #: Prefix of the staging folders that :func:`_staged` makes in ``--out``.
@@ -475,7 +493,7 @@ def _refuse_folders(out, names):
     for name in names:
         if (out / name).is_dir():
             raise UsageError(
-                f"--out: {out / name} is a folder where this run writes a file; "
+                f"--out: {out / name} is a folder named as an output of this command; "
                 "move it away, or choose another --out"
             )
 
@@ -548,16 +566,15 @@ def _check_options(args):
 
 def _check_scale_fits(scale, size):
     """Refuse a ``--background-scale`` beyond the larger side of frames of
-    ``size (H, W)``, pixels. Such a background is close to the mean of the
-    mirror-extended frame (``--background arithmetic``), and the filters'
-    memory and time grow with the scale, not the frame: a scale of 1e9 on a
-    1x1 frame took the machine's 24 GB and was killed, 1e5 on 64x48 took
-    677 MB and 17 s."""
-    if scale is not None and scale > max(size):
+    ``size (H, W)``, pixels: a window larger than the frame covers the
+    mirror-extended frame several times over, and the filters' memory and
+    time grow with the scale, not the frame: a scale of 1e9 on a 1x1 frame
+    took the machine's 24 GB and was killed, 1e5 on 64x48 took 677 MB and
+    17 s."""
+    if scale > max(size):
         raise UsageError(
             f"--background-scale: expected at most {max(size)} pixels, the frames' larger "
-            f"side (beyond it a background is close to the frame's mean: --background "
-            f"arithmetic), got {scale:g}"
+            f"side, got {scale:g}"
         )
 
 
@@ -648,7 +665,8 @@ def render(args, console):
     _check_options(args)
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
-    _check_scale_fits(args.background_scale, source.frames(np.arange(1)).shape[1:3])
+    if args.background_scale is not None:
+        _check_scale_fits(args.background_scale, source.frames(np.arange(1)).shape[1:3])
     if args.gaze is not None:
         source = pipeline.with_gaze(source, args.gaze)
     # The nominal rate: frames split at a flash's edges are shorter, none longer.
@@ -965,7 +983,7 @@ def main(argv=None):
             elif args.command == "psychometric":
                 psychometric_fit(args, console)
     except KeyboardInterrupt as e:
-        done = "every output was" if isinstance(e, _InterruptedAfterwards) else "nothing was"
+        done = "every output was" if _WRITTEN.is_set() else "nothing was"
         print(f"jaxadapt: interrupted; {done} written to --out", file=sys.stderr)
         return 128 + (e.args[0] if e.args else signal.SIGINT)
     except MemoryError:
@@ -1018,23 +1036,20 @@ _SIGNALS = tuple(
 )
 #: Signals received while a command ran (:func:`_interruptible`).
 _SIGNALLED = []
-#: Set while the outputs are moved into place (:func:`_signals_deferred`).
+#: Set while signals are held back (:func:`_signals_deferred`).
 _DEFERRING = threading.Event()
-
-
-class _InterruptedAfterwards(KeyboardInterrupt):
-    """A signal that came while the outputs were moved into place, raised
-    once they all were."""
+#: Set once a command's outputs are all in ``--out`` (:func:`_staged`).
+_WRITTEN = threading.Event()
 
 
 @contextlib.contextmanager
 def _signals_deferred():
     """Hold back the signals of :func:`_interruptible` while the body runs:
-    a signal is remembered, and raised as :class:`_InterruptedAfterwards`
-    when the body has completed (an error of the body goes first). Moving
-    the files of a long render into ``--out`` takes a while, and an
-    interrupt in it left some of the outputs of the new run beside the
-    rest of the old one's."""
+    a signal is remembered, and raised as ``KeyboardInterrupt(signum)`` when
+    the body has completed (an error of the body goes first). Moving the
+    files of a long render into ``--out`` takes a while, and an interrupt
+    in it left some of the outputs of the new run beside the rest of the
+    old one's; one in the removal of a staging folder left the folder."""
     before = len(_SIGNALLED)
     _DEFERRING.set()
     try:
@@ -1042,7 +1057,7 @@ def _signals_deferred():
     finally:
         _DEFERRING.clear()
     if len(_SIGNALLED) > before:
-        raise _InterruptedAfterwards(_SIGNALLED[before])
+        raise KeyboardInterrupt(_SIGNALLED[before])
 
 
 @contextlib.contextmanager
@@ -1057,7 +1072,8 @@ def _interruptible():
     garbage-collector callback, as JAX's is: a render went on to the end
     after such a SIGTERM. So :func:`_staged` also checks :data:`_SIGNALLED`
     before it moves anything into place. Only the main thread can set
-    signal handlers; elsewhere the signals keep their own.
+    signal handlers; elsewhere the signals keep their own. A signal the
+    process was started ignoring (``nohup`` ignores SIGHUP) stays ignored.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -1069,7 +1085,12 @@ def _interruptible():
             raise KeyboardInterrupt(signum)
 
     _SIGNALLED.clear()
-    previous = {s: signal.signal(s, interrupt) for s in _SIGNALS}
+    _WRITTEN.clear()
+    previous = {
+        s: signal.signal(s, interrupt)
+        for s in _SIGNALS
+        if signal.getsignal(s) is not signal.SIG_IGN
+    }
     try:
         yield
     finally:

@@ -73,8 +73,25 @@ def read_hdr(path):
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
     pixels = display_window(pixels[..., header.channels], spec) / np.float32(header.exposure)
     if header.to_bt709 is not None:
-        pixels = pixels @ header.to_bt709.T.astype(np.float32)
+        pixels = to_bt709_gamut(pixels, header.to_bt709)
     return np.ascontiguousarray(reorient(pixels, header.orientation))
+
+
+def to_bt709_gamut(rgb, matrix):
+    """``rgb (..., 3)`` of a file's primaries as linear BT.709, ``matrix @
+    rgb`` (:func:`bt709_matrix`), with the negative channels of colours
+    outside BT.709's gamut clipped to 0.
+
+    A saturated colour of a wider gamut (ACES, Rec.2020) has negative BT.709
+    channels, which no display shows and which the operators, whose
+    responses and colour ratios need light, refuse. Clipping keeps the hue
+    roughly and adds a little light: ACEScg (100, 0, 0) is BT.709 (170.5,
+    -13.0, -2.4), clipped (170.5, 0, 0). A pixel the file itself holds
+    negative or NaN is left as converted, for the caller's check to refuse.
+    """
+    converted = rgb @ matrix.T.astype(rgb.dtype)
+    valid = np.all(rgb >= 0, axis=-1, keepdims=True)
+    return np.where(valid, np.maximum(converted, 0), converted)
 
 
 def hdr_size(path):
@@ -190,7 +207,7 @@ def bt709_matrix(chromaticities, path):
     file's white to D65 where they differ, then XYZ to BT.709, computed by
     colour-science. A D65 white keeps every pixel's XYZ, its luminance Y
     included; another keeps the Y of greys, which stay grey, and changes
-    that of colours slightly (1.5 % at most on the ColorChecker, ACES
+    that of colours slightly (1.6 % at most on the ColorChecker, ACES
     AP0's D60 to D65). Bradford, as OpenColorIO's ACES configuration (and
     OpenImageIO's ``colorconvert``) converts ACES2065-1 to BT.709.
     """
@@ -344,9 +361,11 @@ def radiance_primaries(lines, path):
     HDR file's header ``lines`` (8 numbers: x, y of red, green, blue and
     white, as :func:`bt709_matrix` takes them), or None without one.
 
-    OpenImageIO does not report them. (Radiance's own primaries without
-    the line, white E and green x 0.29, are close to BT.709's, which
-    OpenImageIO and :func:`read_hdr` assume.) ``path`` names the file in
+    OpenImageIO does not report them. A file without the line is taken as
+    BT.709, as OpenImageIO and most tools take it, though Radiance's own
+    default primaries (green x 0.29, white E) differ: the same line written
+    out is converted as it says, which keeps greys grey but adapts the white
+    E to D65 (a saturated red gains about 16 %). ``path`` names the file in
     errors.
     """
     primaries = None

@@ -3,6 +3,7 @@
 import csv
 import errno
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -273,7 +274,7 @@ def test_a_signal_while_the_outputs_move_waits_until_they_all_have(tmp_path, cap
         with cli._interruptible(), cli._staged(out, None) as staging:
             for name in ("a.csv", "b.csv", "c.csv"):
                 (staging / name).write_text("new")
-    assert isinstance(caught.value, cli._InterruptedAfterwards)
+    assert cli._WRITTEN.is_set()  # main says "every output was written to --out"
     assert caught.value.args == (signal.SIGINT,)
     assert {p.name: p.read_text() for p in out.iterdir()} == dict.fromkeys(
         ("a.csv", "b.csv", "c.csv"), "new"
@@ -285,7 +286,7 @@ def test_staging_folders_left_by_killed_runs_are_named(tmp_path, capsys):
     (out / ".jaxadapt-killed").mkdir(parents=True)
     status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
     assert status == 0
-    assert "warning:" in err and ".jaxadapt-killed" in err and "killed" in err
+    assert "warning:" in err and ".jaxadapt-killed" in err and "runs that were killed" in err
 
 
 def test_a_full_device_is_said_naming_out(tmp_path, capsys, monkeypatch):
@@ -297,6 +298,20 @@ def test_a_full_device_is_said_naming_out(tmp_path, capsys, monkeypatch):
     status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
     _assert_one_line_error(status, err, "--out: no space left on the device of", str(out))
     assert not out.exists()
+
+
+def test_a_full_device_is_said_when_the_writer_gives_no_errno(tmp_path, capsys, monkeypatch):
+    # OpenImageIO and ffmpeg say "cannot write (Write error ...)", naming
+    # the removed staging folder: the device's free space tells.
+    def cannot_write(path, *args, **kwargs):
+        raise OSError(f"{path}: cannot write (Write error at position 20477)")
+
+    monkeypatch.setattr(io, "write_image", cannot_write)
+    usage = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(path)._replace(free=0))
+    out = tmp_path / "out"
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    _assert_one_line_error(status, err, "--out: no space left on the device of", str(out))
 
 
 def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_path, capsys):
@@ -880,6 +895,27 @@ def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command
     assert err.strip().splitlines()[-1] == "jaxadapt: interrupted; nothing was written to --out"
     assert "Traceback" not in err
     assert not (tmp_path / "new").exists()
+
+
+def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
+    # Handled as an interrupt, SIGHUP ended a `nohup jaxadapt render` when
+    # its terminal closed.
+    out = tmp_path / "o"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxadapt", "render", "--scene", "flash", *SMALL, "--out", str(out)],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN),
+    )
+    deadline = time.monotonic() + 120
+    while not (out.exists() and any(out.iterdir())) and process.poll() is None:
+        assert time.monotonic() < deadline, "the run made no staging folder in 120 s"
+        time.sleep(0.05)
+    process.send_signal(signal.SIGHUP)
+    err = process.communicate(timeout=120)[1]
+    assert process.returncode == 0, err
+    assert (out / "video.mp4").is_file()
 
 
 @pytest.mark.parametrize(

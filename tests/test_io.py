@@ -7,7 +7,7 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from jaxadapt import io
+from jaxadapt import io, pipeline
 
 
 def _gradient(height=4, width=3):
@@ -280,13 +280,24 @@ def _colours():
 def test_exr_primaries_are_converted_to_bt709(tmp_path, space):
     # An EXR's chromaticities were ignored: ACES AP0 red (100, 0, 0) was
     # read as BT.709 red. The reference: OpenImageIO's colorconvert with
-    # OpenColorIO's built-in configuration (Bradford adaptation to D65).
+    # OpenColorIO's built-in configuration (Bradford adaptation to D65),
+    # its negative channels (colours outside BT.709's gamut) clipped to 0.
     path = tmp_path / "wide.exr"
     _write(path, _colours(), chromaticities=_PRIMARIES[space])
     expected = oiio.ImageBufAlgo.colorconvert(oiio.ImageBuf(str(path)), space, "lin_rec709_scene")
-    np.testing.assert_allclose(
-        io.read_hdr(path), expected.get_pixels(oiio.FLOAT), rtol=2e-4, atol=1e-6
-    )
+    expected = expected.get_pixels(oiio.FLOAT)
+    assert (expected < -1e-3).any()  # the saturated colours are outside BT.709
+    np.testing.assert_allclose(io.read_hdr(path), np.maximum(expected, 0), rtol=2e-4, atol=1e-6)
+
+
+def test_colours_outside_bt709_render(tmp_path):
+    # ACEScg red (100, 0, 0) is BT.709 (170.5, -13.0, -2.4): the negative
+    # channels made the render refuse the file as holding negative values.
+    path = tmp_path / "acescg.exr"
+    _write(path, _colours(), chromaticities=_PRIMARIES["ACEScg"])
+    frames = pipeline.from_files([path], fps=30).frames(np.arange(1))
+    assert frames.min() == 0 and np.isfinite(frames).all()
+    np.testing.assert_allclose(frames[0, 0, 0], (170.505, 0, 0), rtol=1e-4)
 
 
 def _luminance(rgb, chromaticities):
@@ -306,7 +317,9 @@ def test_primaries_conversion_keeps_luminance(tmp_path, space):
     luminance = _luminance(image, io.BT709_CHROMATICITIES)
     expected = _luminance(colours, _PRIMARIES[space])
     greys = (colours == colours[..., :1]).all(axis=-1)
-    kept = greys | (_PRIMARIES[space][6:] == (0.3127, 0.3290))
+    d65 = _PRIMARIES[space][6:] == (0.3127, 0.3290)
+    kept = greys | (d65 & (image > 0).all(axis=-1))  # colours of no clipped channel
+    assert (kept & ~greys).any() == d65
     np.testing.assert_allclose(luminance[kept], expected[kept], rtol=1e-5)
     np.testing.assert_allclose(image[greys], np.repeat(image[greys][:, 1:2], 3, -1), rtol=1e-5)
 
@@ -334,7 +347,8 @@ def test_radiance_primaries_line_is_converted_to_bt709(tmp_path):
     expected = oiio.ImageBufAlgo.colorconvert(
         oiio.ImageBuf(str(path)), "lin_rec2020_scene", "lin_rec709_scene"
     )
-    np.testing.assert_allclose(io.read_hdr(path), expected.get_pixels(oiio.FLOAT), rtol=1e-5)
+    expected = np.maximum(expected.get_pixels(oiio.FLOAT), 0)
+    np.testing.assert_allclose(io.read_hdr(path), expected, rtol=1e-5, atol=1e-7)
 
 
 def _bad_radiance(path, line):
