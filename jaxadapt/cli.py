@@ -16,6 +16,7 @@ import argparse
 import contextlib
 import csv
 import errno
+import math
 import os
 import re
 import shutil
@@ -95,7 +96,16 @@ MP4_MIN_FPS = 1e-4
 
 
 def _frame_rate(text):
-    value = _positive(text)
+    """``--fps``: a number, or a fraction as video rates are written (``24000/1001``)."""
+    numerator, slash, denominator = text.partition("/")
+    try:
+        value = float(numerator) / float(denominator) if slash else float(text)
+    except (ValueError, ZeroDivisionError):
+        value = math.nan
+    if not (value > 0 and np.isfinite(value)):
+        raise argparse.ArgumentTypeError(
+            f"expected a positive number of frames per second (30, 29.97, 24000/1001), got {text!r}"
+        )
     low, high = FPS_RANGE
     if not low <= value <= high:
         raise argparse.ArgumentTypeError(
@@ -984,7 +994,8 @@ def main(argv=None):
                 psychometric_fit(args, console)
     except KeyboardInterrupt as e:
         done = "every output was" if _WRITTEN.is_set() else "nothing was"
-        print(f"jaxadapt: interrupted; {done} written to --out", file=sys.stderr)
+        with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
+            print(f"jaxadapt: interrupted; {done} written to --out", file=sys.stderr)
         return 128 + (e.args[0] if e.args else signal.SIGINT)
     except MemoryError:
         print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)

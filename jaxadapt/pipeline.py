@@ -121,12 +121,7 @@ def from_files(paths, fps, multiplier=1.0):
 
     def read(i):
         frame = first if i == 0 else read_hdr(paths[i])
-        bad = ~(np.isfinite(frame) & (frame >= 0))
-        if bad.any():
-            raise ValueError(
-                f"{paths[i]}: expected finite, non-negative values, got {int(bad.sum())} "
-                "negative, NaN or infinite values"
-            )
+        _check_values(frame, paths[i])
         return _calibrated(frame, multiplier, paths[i])
 
     centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
@@ -141,6 +136,27 @@ def from_files(paths, fps, multiplier=1.0):
         None,
         FILE_PIXELS_PER_DEGREE,
     )
+
+
+def _check_values(frame, path):
+    """Refuse a frame ``(H, W, 3)`` read from ``path`` that holds negative,
+    NaN or infinite values: a ValueError with the count of each and where
+    the first is. Small negative values are common in real EXRs (a
+    renderer's filter ringing, a camera's black level); ``oiiotool
+    --clamp:min=0`` clips them."""
+    kinds = {"negative": frame < 0, "NaN": np.isnan(frame), "infinite": np.isinf(frame)}
+    counts = {name: int(mask.any(axis=-1).sum()) for name, mask in kinds.items()}
+    if any(counts.values()):
+        bad = np.any(list(kinds.values()), axis=(0, -1))
+        row, column = np.argwhere(bad)[0]
+        found = ", ".join(
+            f"{n} pixel{'s' * (n > 1)} with {name} values" for name, n in counts.items() if n
+        )
+        raise ValueError(
+            f"{path}: expected finite, non-negative values, got {found} "
+            f"(the first at row {row}, column {column}); oiiotool {path} --clamp:min=0 -o OUT "
+            "clips negative values"
+        )
 
 
 def chunks(op, params, source, size=32, key=None):

@@ -193,6 +193,30 @@ def test_a_sequence_shorter_than_one_frame_is_refused(tmp_path, capsys):
     assert not (tmp_path / "new").exists()  # a failed run leaves no folder behind
 
 
+def test_bad_values_are_counted_and_located(tmp_path, capsys):
+    # The message gave one count of "negative, NaN or infinite values" and
+    # no place to look.
+    frame = np.ones((4, 5, 3), np.float32)
+    frame[1, 3, 0], frame[2, 0] = -1e-4, np.nan
+    bad = tmp_path / "bad.exr"
+    io.write_image(bad, frame)
+    status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(
+        status, err, "1 pixel with negative values, 1 pixel with NaN", "row 1, column 3", "--clamp"
+    )
+
+
+def test_fps_takes_a_fraction(tmp_path, capsys):
+    # 24000/1001, as video rates are written, was refused.
+    image = tmp_path / "in.exr"
+    io.write_image(image, np.ones((4, 4, 3), np.float32))
+    out = tmp_path / "o"
+    args = ["render", str(image), str(image), "--fps", "24000/1001", "--format", "exr"]
+    assert _run(capsys, *args, "--out", str(out))[0] == 0
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    assert float(rows[1]["t"]) == pytest.approx(1001 / 24000)
+
+
 def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):
     bad = tmp_path / "bad.exr"
     io.write_image(bad, np.full((4, 4, 3), np.nan, np.float32))
@@ -944,6 +968,8 @@ def test_a_scenes_error_names_the_options_given(tmp_path, capsys, argv, message)
         # or whose frame time left float32 (black frames, or "dt").
         (["render", "--fps", "1e-7"], "from 1e-05 to 1e+06"),
         (["render", "--fps", "1e300"], "from 1e-05 to 1e+06"),
+        (["render", "--fps", "24000/0"], "(30, 29.97, 24000/1001)"),
+        (["render", "--fps", "24000/-1001"], "(30, 29.97, 24000/1001)"),
     ],
 )
 def test_argument_errors_are_one_line(capsys, argv, option):
