@@ -144,11 +144,11 @@ def _check_values(frame, path):
     the first is. Small negative values are common in real EXRs (a
     renderer's filter ringing, a camera's black level); ``oiiotool
     --clamp:min=0`` clips them."""
-    kinds = {"negative": frame < 0, "NaN": np.isnan(frame), "infinite": np.isinf(frame)}
-    counts = {name: int(mask.any(axis=-1).sum()) for name, mask in kinds.items()}
-    if any(counts.values()):
-        bad = np.any(list(kinds.values()), axis=(0, -1))
-        row, column = np.argwhere(bad)[0]
+    bad = ~(np.isfinite(frame) & (frame >= 0))  # one pass for a good frame
+    if bad.any():
+        kinds = {"negative": frame < 0, "NaN": np.isnan(frame), "infinite": np.isinf(frame)}
+        counts = {name: int(mask.any(axis=-1).sum()) for name, mask in kinds.items()}
+        row, column = np.argwhere(bad.any(axis=-1))[0]
         found = ", ".join(
             f"{n} pixel{'s' * (n > 1)} with {name} values" for name, n in counts.items() if n
         )

@@ -31,6 +31,15 @@ def _run(capsys, *argv):
     return status, capsys.readouterr().err
 
 
+def _fit_rows(capsys, rows, folder, *options):
+    """``psychometric fit`` of a table of ``rows`` (lines), written to
+    ``folder/trials.csv``, into ``folder``: ``(status, stderr)``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    trials = folder / "trials.csv"
+    trials.write_text("\n".join(rows) + "\n")
+    return _run(capsys, "psychometric", "fit", str(trials), *options, "--out", str(folder))
+
+
 def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, capsys):
     out = tmp_path / "out"
     status, _ = _run(capsys, "render", "--scene", "title-step", *SMALL, "--out", str(out))
@@ -568,13 +577,10 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
         for condition, shift in (("control", 0.0), ("manipulated", 0.15)):
             k = rng.binomial(20, norm_cdf((levels - shift) / 0.1))
             rows += [f"p{p},{condition},{x:.4f},{y},20" for x, y in zip(levels, k, strict=True)]
-    trials = tmp_path / "trials.csv"
-    trials.write_text("\n".join(rows) + "\n")
     out = tmp_path / "out"
-    status, err = _run(
-        capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(out)
-    )
+    status, err = _fit_rows(capsys, rows, out, "--resamples", "0")
     assert status == 0, err
+    trials = out / "trials.csv"
     fits = list(csv.DictReader(open(out / "fits.csv")))
     assert len(fits) == 12 and all(f["converged"] == "true" for f in fits)
     (test,) = list(csv.DictReader(open(out / "group_test.csv")))
@@ -587,18 +593,7 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     # for the normal approximation. Both as SciPy gives them.
     for method, exact in (("auto", "true"), ("asymptotic", "false")):
         if method != "auto":
-            status, err = _run(
-                capsys,
-                "psychometric",
-                "fit",
-                str(trials),
-                "--resamples",
-                "0",
-                "--out",
-                str(out),
-                "--ranksum",
-                method,
-            )
+            status, err = _fit_rows(capsys, rows, out, "--resamples", "0", "--ranksum", method)
             assert status == 0, err
             (test,) = list(csv.DictReader(open(out / "group_test.csv")))
         scipy_method = "exact" if exact == "true" else "asymptotic"
@@ -719,12 +714,8 @@ def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
     rows = ["participant,condition,level,n_yes,n_total"]
     for x, k in zip((-0.3, -0.15, 0.0, 0.15, 0.3), (0, 0, 0, 30, 30), strict=True):
         rows += [f"p1,control,{x},{k},30", f"p2,control,{x},30,30"]
-    table = tmp_path / "trials.csv"
-    table.write_text("\n".join(rows) + "\n")
     out = tmp_path / "o"
-    status, err = _run(
-        capsys, "psychometric", "fit", str(table), "--resamples", "50", "--out", str(out)
-    )
+    status, err = _fit_rows(capsys, rows, out, "--resamples", "50")
     assert status == 0, err
     separated, unplaced = list(csv.DictReader(open(out / "fits.csv")))
     assert float(separated["ci_low"]) <= 0.0 and float(separated["ci_high"]) >= 0.15
@@ -734,14 +725,10 @@ def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
 
 
 def _fit_in_float32(capsys, rows, folder):
-    """``psychometric fit`` of a table of ``rows`` (lines) into ``folder``,
-    with float64 off as for a user (the tests switch it on)."""
-    trials = folder / "trials.csv"
-    trials.write_text("\n".join(rows) + "\n")
+    """:func:`_fit_rows` with ``--resamples 0`` and float64 off, as for a
+    user (the tests switch it on)."""
     with jax.enable_x64(False):
-        status, err = _run(
-            capsys, "psychometric", "fit", str(trials), "--resamples", "0", "--out", str(folder)
-        )
+        status, err = _fit_rows(capsys, rows, folder, "--resamples", "0")
     assert status == 0, err
 
 
