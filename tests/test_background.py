@@ -122,13 +122,15 @@ def test_constant_image_gives_its_luminance(name):
 
 
 def test_box_sizes_follow_the_chapter_box_as_the_octaves_do():
-    # ||p - i|| < s made square: half-width round(s) - 1, as each level of
-    # octave_radii (box_background took round(s), a box two pixels wider).
+    # ||p - i|| < s made square: half-width ceil(s) - 1, the largest whole
+    # offset below s, as each level of octave_radii (box_background took
+    # round(s), a box two pixels wider; round(4.2) - 1 left offset 4 out).
     L = np.random.default_rng(7).lognormal(size=(9, 13))
     np.testing.assert_array_equal(goal.box_background(jnp.asarray(L), scale=1), L)
-    expected = ndi.uniform_filter(L, size=2 * 3 + 1, mode="mirror")
+    expected = ndi.uniform_filter(L, size=2 * 4 + 1, mode="mirror")
     np.testing.assert_allclose(goal.box_background(jnp.asarray(L), scale=4.2), expected, rtol=1e-12)
-    assert goal.octave_radii(4.2, 2)[0] == goal.box_radius(4.2) == 3
+    assert goal.octave_radii(4.2, 2)[0] == goal.box_radius(4.2) == 4
+    assert goal.box_radius(4.0) == 3
 
 
 @pytest.mark.parametrize("name", LOCAL)

@@ -249,6 +249,24 @@ def test_more_frames_of_the_same_shape_do_not_retrace():
     assert len(traces) == 1
 
 
+def test_step_does_not_retrace_for_new_frames(monkeypatch):
+    # step built its background function afresh at each call, and tone_map,
+    # jitted with it as a static argument, was traced again for every frame.
+    traces = []
+    original = classic.estimate_background
+
+    def counting(*args, **kwargs):
+        traces.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(classic, "estimate_background", counting)
+    params = classic.Params(background="gaussian", background_scale=2.0)
+    frame = hdr_frame(5, shape=(5, 11))  # a shape no other test uses
+    for k in range(3):
+        classic.step(params, None, frame * (k + 1.0), 0.03)
+    assert len(traces) == 1
+
+
 @pytest.mark.parametrize("name", CURVES)
 def test_float32_in_float32_out(name):
     params = classic.TONE_CURVES[name]()

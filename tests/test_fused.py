@@ -58,28 +58,44 @@ def test_kernel_equals_the_map_it_fuses(dtype, background):
     assert got[0, 0, 0].tolist() == [0.0, 0.0, 0.0]
 
 
+def _brightening(T=3, H=4, W=5):
+    """Frames that brighten 100-fold after the first: from the third on,
+    the display depends on the cone time constant (frame ``k`` is seen with
+    the state after frames ``0 .. k-1``, and the first state is adapted to
+    the first frame)."""
+    return _frames(T, H, W).at[1:].multiply(100.0)
+
+
 def test_kernel_derivative_is_that_of_the_map():
-    frames = _frames(2, 4, 5)
+    # With two frames of one level (as this test had) the display did not
+    # depend on t0 at all: the derivative compared was rounding, 2e-15.
+    frames = _brightening()
 
     def loss(t0, fn):
         params = op.Params(t0_cone=t0)
         return jnp.sum(fn(frames, (params, _observers(params, frames))) ** 2)
 
-    got = jax.grad(loss)(0.08, _fused)
-    assert got == pytest.approx(float(jax.grad(loss)(0.08, _tone_map)), rel=1e-12)
-    assert got != 0.0
+    got = float(jax.jit(jax.grad(loss), static_argnums=1)(0.08, _fused))
+    assert got == pytest.approx(
+        float(jax.jit(jax.grad(loss), static_argnums=1)(0.08, _tone_map)), rel=1e-12
+    )
+    h, value = 1e-6, jax.jit(loss, static_argnums=1)
+    assert got == pytest.approx(
+        float(value(0.08 + h, _tone_map) - value(0.08 - h, _tone_map)) / (2 * h), rel=1e-6
+    )
 
 
 def test_kernel_under_vmap_over_parameters():
-    frames = _frames(2, 4, 5)
+    frames = _brightening()
 
     def both(t0):
         params = op.Params(t0_cone=t0)
         args = (params, _observers(params, frames))
         return _fused(frames, args), _tone_map(frames, args)
 
-    got, expected = jax.vmap(both)(jnp.array([0.05, 0.08, 0.2]))
+    got, expected = jax.jit(jax.vmap(both))(jnp.array([0.05, 0.08, 0.2]))
     np.testing.assert_allclose(got, expected, rtol=1e-13)
+    assert float(jnp.max(jnp.abs(got[0] - got[2]))) > 1e-3  # the time constant matters
 
 
 @pytest.mark.parametrize("shape", [(3,), (2, 5, 4)])

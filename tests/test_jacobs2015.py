@@ -676,6 +676,24 @@ def test_afterimage_maps_spread_the_same_angle_on_any_display():
         assert spread_deg(ppd, fps) == pytest.approx(paper, rel=0.01)
 
 
+def test_blurred_maps_keep_their_ranges_where_the_equilibrium_changes():
+    # A square just lit (its calcium at C_max, its equilibrium 0) inside a
+    # dark field at C_max, and one just darkened (bleached, equilibrium 0)
+    # inside a bleached bright field: the blurred departures took the
+    # fields' calcium above C_max and bleaching above 1, and Eq 11's local
+    # gain negative (-0.015 beside a 1e8 cd/m2 sun gone dark).
+    params = op.Params(afterimage_blur=2.0)
+    C_max = float(params.c1 / params.c2)
+    square = jnp.zeros((24, 24, 3), bool).at[8:16, 8:16].set(True)
+    C, C_inf = jnp.full((24, 24, 3), C_max), jnp.where(square, 0.0, C_max)
+    B, B_inf = jnp.ones((24, 24, 3)), jnp.where(square, 0.0, 1.0)
+    B_next, C_next = op.blur_maps(params, B, C, B_inf, C_inf)
+    assert float(B_next.max()) <= 1.0 and float(B_next.min()) >= 0.0
+    assert float(C_next.max()) <= C_max and float(C_next.min()) >= 0.0
+    assert float(op.local_gain(params, C_next, C_inf).min()) > 0.0
+    assert float(C_next[12, 12, 0]) < C_max  # the blur still moves the square's departure
+
+
 def test_a_steady_scene_seen_steadily_leaves_no_afterimage():
     # Started at equilibrium, with the scene and the gaze still, Eqs 4-12
     # change nothing. Blurring the whole maps (not their departures from

@@ -59,13 +59,16 @@ def test_inverse_undoes_the_response(L, sigma, B):
 
 
 def test_inverses_outside_their_range_are_nan_not_black():
-    # power() maps a negative base to 0: a response beyond saturation (or
-    # negative) came back as 0 cd/m2.
+    # power() mapped a negative base to 0: a response beyond saturation (or
+    # negative) came back as 0 cd/m2. Now NaN goes in and out of power.
     for R, expected in ((0.6, np.nan), (-0.1, np.nan), (0.5, np.inf), (0.0, 0.0)):
         np.testing.assert_equal(float(r.naka_rushton_inverse(R, 2.0, B=0.5)), expected)
     for R, expected in ((1.1, np.nan), (-0.1, np.nan), (1.0016, np.inf), (0.0, 0.0)):
         L = r.naka_rushton_sum_inverse(jnp.asarray(R), 722.0, 0.0016, 646.0, 1.0)
         np.testing.assert_equal(float(L), expected)
+    for x, expected in ((np.nan, np.nan), (-1.0, np.nan), (0.0, 0.0), (8.0, 2.0)):
+        np.testing.assert_allclose(float(r.power(x, 1 / 3)), expected, rtol=1e-12)
+    assert np.isnan(float(r.naka_rushton(np.nan, 1.0)))
 
 
 @given(L1=LUMINANCE, L2=LUMINANCE, A=LUMINANCE)

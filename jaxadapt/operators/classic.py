@@ -428,6 +428,11 @@ def tone_map(params, frame, background=None):
     """
     frame = check_rgb(frame, "frame", "(..., H, W, 3)", min_ndim=3)
     frame = eqx.error_if(frame, ~jnp.all(jnp.isfinite(frame)), "frame: expected finite values")
+    return _tone_map_checked(params, frame, background)[0]
+
+
+def _tone_map_checked(params, frame, background):
+    """:func:`tone_map` of a checked frame; returns the display frame and ``I_b``."""
     params = as_dtype(params, frame.dtype)
     # A grey of the floor's luminance has that luminance: L needs no second pass.
     L = photopic_luminance(frame)
@@ -436,7 +441,7 @@ def tone_map(params, frame, background=None):
     L = jnp.where(dark, LUMINANCE_FLOOR, L)
     I_b = jnp.maximum(_background(L, background), LUMINANCE_FLOOR)
     Y = params.curve(L, I_b)
-    return jnp.clip(frame * (Y / L)[..., None], 0.0, 1.0)
+    return jnp.clip(frame * (Y / L)[..., None], 0.0, 1.0), I_b
 
 
 # -- the operator contract -------------------------------------------------------
@@ -502,6 +507,7 @@ def _frame_background(params):
     return partial(estimate_background, name=params.background, scale=params.background_scale)
 
 
+@eqx.filter_jit
 def step(params, state, frame, dt, *, gaze=None, key=None):
     """Tone-map one frame ``(H, W, 3)``; returns ``(None, display frame)``.
 
@@ -526,9 +532,7 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     frames = jnp.asarray(frames)
     guard, dt = check_frames_and_dt(frames, jnp.asarray(dt, frames.dtype), 4)
     background = _frame_background(params)
-    out = jax.lax.map(lambda f: tone_map(params.curve, f + guard, background), frames)
-    L = jnp.maximum(photopic_luminance(frames), LUMINANCE_FLOOR)
-    I_b = jnp.maximum(background(L), LUMINANCE_FLOOR)
+    out, I_b = jax.lax.map(lambda f: _tone_map_checked(params.curve, f + guard, background), frames)
     mean_background = jnp.exp(jnp.mean(jnp.log(I_b), axis=(-2, -1)))
     return out, Diagnostics(jnp.cumsum(dt) - dt, mean_background)
 

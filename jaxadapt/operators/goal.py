@@ -12,6 +12,8 @@ the ``I_b`` of the tone curves, estimated globally or locally in the ways
 Python-number options, the sizes in pixels among them, are static.
 """
 
+import math
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -162,16 +164,16 @@ def check_scale(scale, least=0.0, name="scale"):
 
 def box_radius(scale):
     """Half-width of the chapter's box ``||p - i|| < s`` (§6.4.2) made
-    square: ``round(s) - 1`` pixels, so that ``s = 1`` is the pixel itself
-    and ``s >= 1``.
+    square: ``ceil(s) - 1`` pixels, the largest whole offset below ``s``, so
+    that ``s = 1`` is the pixel itself and ``s >= 1``.
 
     Examples
     --------
-    >>> box_radius(1), box_radius(8.0)
-    (0, 7)
+    >>> box_radius(1), box_radius(8.0), box_radius(4.2)
+    (0, 7, 4)
     """
     check_scale(scale, least=1)
-    return int(round(scale)) - 1
+    return math.ceil(scale) - 1
 
 
 def arithmetic_average(L):
@@ -253,7 +255,7 @@ def box_background(L, scale=8.0):
     scale : float
         Size ``s``, pixels (static), ``>= 1``: the chapter's disc ``||p - i||
         < s`` made square, so that it is separable, of half-width
-        :func:`box_radius` ``round(s) - 1`` (as each level of
+        :func:`box_radius` ``ceil(s) - 1`` (as each level of
         :func:`octave_radii`; see :func:`jaxadapt.spatial.box_filter`).
 
     Returns
@@ -346,7 +348,7 @@ def bilateral_background(L, scale=4.0, sigma_r=None, kind="durand-dorsey", floor
 
 
 def octave_radii(scale, levels):
-    """Box half-widths of a stack whose size parameter doubles: ``round(s 2^i) - 1``.
+    """Box half-widths of a stack whose size parameter doubles: ``ceil(s 2^i) - 1``.
 
     Each level is the box of size ``s 2^i`` (:func:`box_radius`): ``s = 1``
     is the pixel itself.
@@ -489,10 +491,9 @@ def estimate_background(L, name, scale):
     ``scale`` (pixels) is passed to the local estimators; the global ones
     (``"global"``, ``"arithmetic"``) have no size and are broadcast to the
     image's shape. Every estimate is floored at :data:`LUMINANCE_FLOOR`, as
-    the log averages are: a blur of a black region is 0, and an adaptation
-    state of 0 has no semi-saturation (``sigma(0)`` is 0/0 in Hunt's ``F_L``),
-    which erased every frame after total darkness until the state had left
-    0 (a local Gaussian background, the flash scene).
+    the log averages are: a blur of a black region is 0, and its background
+    is then, like a black pixel's luminance, the bottom of the range of
+    vision.
     """
     estimator = BACKGROUNDS[name]
     I_b = estimator(L) if name in ("global", "arithmetic") else estimator(L, scale=scale)

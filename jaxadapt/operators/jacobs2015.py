@@ -707,6 +707,13 @@ def blur_maps(params, B, C, B_inf, C_inf):
     every edge: a ring built up around a 1e6 cd/m2 lamp on a 20 cd/m2 field
     (display values moved by up to 0.029 in 2 s), where Eqs 4-12 have
     nothing change.
+
+    A departure blurred onto a pixel whose equilibrium differs can carry
+    it past the maps' bounds: beside a 1e8 cd/m2 sun just gone dark, the
+    dark field's calcium (at its maximum ``C_max = c1 / c2``) got more,
+    Eq 11's denominator ``C_max - C`` changed sign and the local gain was
+    -0.015. The blurred maps are clipped to their ranges, ``B`` to [0, 1]
+    and ``C`` to ``[0, C_max]``, as the kinetics keep them.
     """
     if params.afterimage_blur == 0:
         return B, C
@@ -715,7 +722,11 @@ def blur_maps(params, B, C, B_inf, C_inf):
         jnp.moveaxis(both, -1, 0), discrete_gaussian_kernel(params.afterimage_blur)
     )
     blurred = jnp.moveaxis(blurred, 0, -1)
-    return B_inf + blurred[..., :3], C_inf + blurred[..., 3:]
+    C_max = params.c1 / params.c2
+    return (
+        jnp.clip(B_inf + blurred[..., :3], 0.0, 1.0),
+        jnp.clip(C_inf + blurred[..., 3:], 0.0, C_max),
+    )
 
 
 #: Frame rate at which the default ``afterimage_blur`` (1 pixel a frame, at

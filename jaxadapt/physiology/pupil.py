@@ -14,7 +14,7 @@ chapter 6, §6.2.1-6.2.2 (``shared/seeds/001_*.txt``), after Moon and Spencer
 import jax.numpy as jnp
 
 #: Luminance of the de Groot and Gebhard formula's largest pupil,
-#: ``10^-8.6`` cd/m2 (the vertex of its cubic in log luminance).
+#: ``10^-8.6`` cd/m2 (where its cubic in log luminance has zero slope).
 DE_GROOT_GEBHARD_DARK = 10.0**-8.6
 
 
@@ -30,7 +30,9 @@ def diameter_moon_spencer(L):
     -------
     array
         Diameter, mm, between 1.9 (bright) and 7.9 (dark); ``L = 0`` gives
-        the dark limit 7.9 mm.
+        the dark limit 7.9 mm, with a zero derivative (luminance is floored
+        at the dtype's smallest normal number, where the curve is flat to
+        its precision).
 
     Notes
     -----
@@ -45,6 +47,8 @@ def diameter_moon_spencer(L):
     >>> round(float(diameter_moon_spencer(0.1)), 6)
     4.9
     """
+    L = jnp.asarray(L, jnp.result_type(L, float))
+    L = jnp.maximum(L, jnp.finfo(L.dtype).tiny)
     return 4.9 - 3.0 * jnp.tanh(0.4 * (jnp.log10(L) + 1.0))
 
 
@@ -64,8 +68,8 @@ def diameter_de_groot_gebhard(L):
 
     Notes
     -----
-    The cubic has its vertex, the largest pupil, at ``L = 10^-8.6`` cd/m2
-    (:data:`DE_GROOT_GEBHARD_DARK`); below it the polynomial would make the
+    The cubic's slope is zero, at its inflection point, at ``L = 10^-8.6``
+    cd/m2 (:data:`DE_GROOT_GEBHARD_DARK`); below it the polynomial would make the
     pupil grow without bound (and infinite at ``L = 0``), which is an
     artefact of the fit, not of the eye. We hold the diameter at its maximum
     there, so ``L = 0`` gives the dark-adapted 7.18 mm. Above about 300

@@ -23,16 +23,17 @@ def power(x, p):
     ``pow`` (which handles negative bases and integer exponents) is about
     three times slower than ``exp`` and ``log`` on the CPU, and the
     operators evaluate it several times per pixel. Zero gives zero with a
-    zero gradient (no ``0 * inf``).
+    zero gradient (no ``0 * inf``); a negative ``x``, outside the domain,
+    gives NaN as NaN does, so that neither vanishes into a response of 0.
 
     Examples
     --------
-    >>> round(float(power(8.0, 1 / 3)), 12), float(power(0.0, 0.73))
-    (2.0, 0.0)
+    >>> round(float(power(8.0, 1 / 3)), 12), float(power(0.0, 0.73)), float(power(-1.0, 0.73))
+    (2.0, 0.0, nan)
     """
     positive = x > 0
     safe = jnp.where(positive, x, 1.0)
-    return jnp.where(positive, jnp.exp(p * jnp.log(safe)), 0.0)
+    return jnp.where(positive, jnp.exp(p * jnp.log(safe)), jnp.where(x == 0, 0.0, jnp.nan))
 
 
 def naka_rushton(L, sigma, B=1.0, n=N_HUNT):
@@ -84,7 +85,8 @@ def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
     -------
     array
         Luminance in cd/m2: ``inf`` at ``R = B``, NaN for ``R`` outside
-        ``[0, B]`` (no luminance evokes it; ``power`` would give 0).
+        ``[0, B]`` (no luminance evokes it: ``R / (B - R)`` is negative,
+        which :func:`power` takes to NaN).
 
     Examples
     --------
@@ -92,7 +94,7 @@ def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
     2.0
     """
     R = jnp.asarray(R)
-    return _in_range(R, B, sigma * power(R / (B - R), 1.0 / n))
+    return sigma * power(R / (B - R), 1.0 / n)
 
 
 def _in_range(R, B, value):

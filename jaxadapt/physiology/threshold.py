@@ -211,8 +211,16 @@ def increment_threshold(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     >>> round(float(increment_threshold(0.0, 1.0, 0.01, n=1.0)), 6)  # 0.01 / 0.99^2
     0.010203
     """
+    R, headroom = _criterion_response(I_b, sigma_b, delta, R_max, n)
+    return delta * sigma_b / n * R_max * power(R, (1.0 - n) / n) / power(headroom, (n + 1.0) / n)
+
+
+def _criterion_response(I_b, sigma_b, delta, R_max, n):
+    """The response ``R = R_b + delta`` a threshold increment must reach, and
+    its headroom ``R_max - R`` below saturation, 0 where ``R`` is beyond it
+    (no increment raises the response by ``delta``)."""
     R = naka_rushton(I_b, sigma_b, R_max, n) + delta
-    return delta * sigma_b / n * R_max * power(R, (1.0 - n) / n) / power(R_max - R, (n + 1.0) / n)
+    return R, jnp.maximum(R_max - R, 0.0)
 
 
 def increment_sensitivity(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
@@ -223,8 +231,8 @@ def increment_sensitivity(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     sensitivity 0 with a finite gradient instead of an infinite threshold,
     which is what a fit through saturation needs.
     """
-    R = naka_rushton(I_b, sigma_b, R_max, n) + delta
-    return n * power(R_max - R, (n + 1.0) / n) / (delta * sigma_b * R_max * power(R, (1.0 - n) / n))
+    R, headroom = _criterion_response(I_b, sigma_b, delta, R_max, n)
+    return n * power(headroom, (n + 1.0) / n) / (delta * sigma_b * R_max * power(R, (1.0 - n) / n))
 
 
 def relative_threshold(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n=N_HUNT):
