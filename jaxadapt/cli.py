@@ -721,7 +721,7 @@ def render(args, console):
                     if "pfm" in formats:
                         io.write_image(staging / f"{name}.pfm", linear[k])
                     if i in contact_idx:
-                        contact.append(coded[k])
+                        contact.append(coded[k].copy())  # not a view holding the chunk
                 send_video(coded)
                 tables.append(table)
                 progress.advance(task, len(idx))

@@ -1,10 +1,12 @@
-"""Display encodings: from display-relative linear values in [0, 1] to code values."""
+"""Display encodings: from display-relative linear values in [0, 1] to encoded
+signals in [0, 1], and from those to 8-bit code values."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.physiology.response import power
+from jaxadapt.spatial import check_value
 
 
 def encode_srgb(v):
@@ -19,6 +21,7 @@ def encode_srgb(v):
 
 def encode_gamma(v, gamma=2.2):
     """Pure power-law encoding ``v^(1/gamma)`` of linear values in [0, 1]."""
+    check_value("gamma", gamma, lambda g: np.isfinite(g) & (g > 0), "a positive display gamma")
     return power(jnp.clip(v, 0.0, 1.0), 1.0 / gamma)
 
 
@@ -26,7 +29,8 @@ ENCODINGS = {"srgb": encode_srgb, "gamma": encode_gamma, "linear": lambda v: jnp
 
 
 def to_uint8(v):
-    """Quantise encoded values in [0, 1] to 8-bit code values (round to nearest)."""
+    """Quantise encoded values in [0, 1] to 8-bit code values: the nearest,
+    ties to even (``jnp.round``)."""
     return np.asarray(jnp.round(jnp.clip(v, 0.0, 1.0) * 255.0)).astype(np.uint8)
 
 

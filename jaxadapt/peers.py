@@ -42,22 +42,28 @@ def pfstmo_pattanaik00(frames, *options):
         tmp = Path(tmp)
         for k, frame in enumerate(frames):
             write_image(tmp / f"in_{k:05d}.exr", frame)
-        read = subprocess.Popen(
-            ["pfsin", str(tmp / "in_%05d.exr"), "--frames", f"0:{len(frames) - 1}"],
-            stdout=subprocess.PIPE,
-        )
-        tmo = subprocess.Popen(
-            ["pfstmo_pattanaik00", "--verbose", *options],
-            stdin=read.stdout,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-        )
-        read.stdout.close()
-        write = subprocess.run(
-            ["pfsout", str(tmp / "out_%05d.exr")], stdin=tmo.stdout, capture_output=True
-        )
-        report = tmo.stderr.read().decode()
-        if tmo.wait() or read.wait() or write.returncode:
+        # The report goes to a file: read from a pipe only at the end, a
+        # report of over 64 KiB filled the pipe and the three waited forever.
+        with open(tmp / "report.txt", "w+b") as report_file:
+            read = subprocess.Popen(
+                ["pfsin", str(tmp / "in_%05d.exr"), "--frames", f"0:{len(frames) - 1}"],
+                stdout=subprocess.PIPE,
+            )
+            tmo = subprocess.Popen(
+                ["pfstmo_pattanaik00", "--verbose", *options],
+                stdin=read.stdout,
+                stdout=subprocess.PIPE,
+                stderr=report_file,
+            )
+            read.stdout.close()
+            write = subprocess.run(
+                ["pfsout", str(tmp / "out_%05d.exr")], stdin=tmo.stdout, capture_output=True
+            )
+            tmo.stdout.close()
+            failed = [tmo.wait(), read.wait(), write.returncode]
+            report_file.seek(0)
+            report = report_file.read().decode()
+        if any(failed):
             raise RuntimeError(f"pfstmo_pattanaik00 failed: {report or write.stderr.decode()}")
         out = np.stack([read_hdr(tmp / f"out_{k:05d}.exr") for k in range(len(frames))])
     return out, report

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.io import hdr_size, read_hdr
+from jaxadapt.spatial import check_value, check_whole
 
 #: Pixels per degree assumed for files, whose viewing geometry is unknown:
 #: a 1920-pixel-wide frame seen across 64 degrees.
@@ -52,6 +53,17 @@ class Source(NamedTuple):
     pixels_per_degree: float
 
 
+def _check_multiplier(multiplier):
+    """Refuse a multiplier that is not positive and finite in float32 (1e-50
+    is 0 there: every frame would be black)."""
+    check_value(
+        "multiplier",
+        multiplier,
+        lambda m: np.isfinite(m) & (np.float32(m) > 0),
+        "a positive finite factor (float32: at least 1.4e-45)",
+    )
+
+
 def _calibrated(frames, multiplier, name):
     """``frames * multiplier`` in float32; a ValueError naming ``name`` (the
     frames' source) where that overflows."""
@@ -67,6 +79,7 @@ def _calibrated(frames, multiplier, name):
 
 def from_scene(scene, multiplier=1.0):
     """A :class:`Source` over a :class:`jaxadapt.scenes.Scene`, scaled by ``multiplier``."""
+    _check_multiplier(multiplier)
 
     def frames(idx):
         rendered = np.asarray(scene.render(scene.times[idx]), np.float32)
@@ -104,12 +117,17 @@ def from_files(paths, fps, multiplier=1.0):
     FileNotFoundError
         A file does not exist.
     ValueError
-        A file cannot be read as an HDR image or its size differs from the
+        No path, ``fps`` or ``multiplier`` not positive and finite, a file
+        that cannot be read as an HDR image or whose size differs from the
         first's (all checked up front, from the files' headers); later, when
         its chunk is read, a frame that holds negative, NaN or infinite
         values.
     """
     paths = [Path(p) for p in paths]
+    if not paths:
+        raise ValueError("paths: expected at least one HDR file, got none")
+    check_value("fps", fps, lambda f: np.isfinite(f) & (f > 0), "a positive frame rate")
+    _check_multiplier(multiplier)
     first = read_hdr(paths[0])
     for p in paths[1:]:
         width, height = hdr_size(p)
@@ -146,7 +164,11 @@ def _check_values(frame, path):
     --clamp:min=0`` clips them."""
     bad = ~(np.isfinite(frame) & (frame >= 0))  # one pass for a good frame
     if bad.any():
-        kinds = {"negative": frame < 0, "NaN": np.isnan(frame), "infinite": np.isinf(frame)}
+        kinds = {
+            "negative": (frame < 0) & np.isfinite(frame),  # -inf is counted as infinite
+            "NaN": np.isnan(frame),
+            "infinite": np.isinf(frame),
+        }
         counts = {name: int(mask.any(axis=-1).sum()) for name, mask in kinds.items()}
         row, column = np.argwhere(bad.any(axis=-1))[0]
         found = ", ".join(
@@ -180,23 +202,42 @@ def chunks(op, params, source, size=32, key=None):
     (numpy array, numpy array, dict)
         Frame indices ``(n,)``, display frames ``(n, H, W, 3)`` in [0, 1]
         and the chunk's diagnostics as columns of length ``n``.
+
+    Raises
+    ------
+    ValueError
+        ``size`` is not a whole number of frames, at least 1.
+    FloatingPointError
+        A display frame holds a non-finite value (:func:`_finite`).
     """
-    if size < 1:
-        raise ValueError(f"size: expected a positive number of frames, got {size}")
+    size = check_whole("size", size, least=1, unit="frames")
     T = len(source.times)
-    state = None
     for start in range(0, T, size):
         idx = np.arange(start, min(start + size, T))
         frames = jnp.asarray(source.frames(idx))
         gaze = jnp.asarray(source.gaze(idx), jnp.float32)
-        if state is None:
+        if start == 0:  # (a state of None is that of an operator without one)
             state = op.init(params, frames[0], gaze=gaze[0], key=key, adaptation=source.adaptation)
         dt = jnp.asarray(source.dt[idx], jnp.float32)
         out, diag = op.run(params, frames, dt, gaze=gaze, state=state)
         state = diag.final_state
         table = op.diagnostics_table(diag)
         table["t"] = source.times[idx]
-        yield idx, np.asarray(out), table
+        yield idx, _finite(np.asarray(out), idx, op), table
+
+
+def _finite(out, idx, op):
+    """The display frames ``out`` of frames ``idx``, after checking that they
+    are finite: a non-finite display value is a defect of the operator, which
+    quantising to 8 bits would write as black without a word."""
+    bad = ~np.isfinite(out).reshape(len(idx), -1).all(axis=1)
+    if bad.any():
+        raise FloatingPointError(
+            f"{op.__name__}: display frame {idx[np.argmax(bad)]} holds non-finite values "
+            f"({int(bad.sum())} of frames {idx[0]} to {idx[-1]}); "
+            "this is a defect, please report it"
+        )
+    return out
 
 
 def concatenate(tables):
@@ -212,7 +253,8 @@ def collect(op, params, source, keep, size=32, key=None):
     """
     frames, tables = {}, []
     for idx, out, table in chunks(op, params, source, size, key):
-        frames.update({i: out[k] for k, i in enumerate(idx) if i in keep})
+        # copies: a view of ``out`` would hold the whole chunk in memory
+        frames.update({i: out[k].copy() for k, i in enumerate(idx) if i in keep})
         tables.append(table)
     return frames, concatenate(tables)
 

@@ -1,6 +1,18 @@
-"""Numerical checks run in float64; the float32 paths are tested explicitly."""
+"""Numerical checks run in float64; the float32 paths are tested explicitly.
+
+One XLA compilation cache serves the processes of a test run (the pytest-xdist
+workers and the command lines the CLI tests start): a function that one of
+them compiled, another loads instead of compiling it again. It lives in a
+folder made for the run and removed after it, so no run loads what another
+compiled.
+"""
+
+import os
+import shutil
+import tempfile
 
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 
@@ -9,3 +21,23 @@ from hypothesis import settings  # noqa: E402
 # JAX dispatch makes the first example of each shape slow: no deadlines.
 settings.register_profile("jaxadapt", deadline=None, max_examples=50)
 settings.load_profile("jaxadapt")
+
+CACHE_FOLDER = pytest.StashKey[str]()
+
+
+def pytest_configure(config):
+    if "PYTEST_XDIST_WORKER" in os.environ:  # a worker: the run's environment names the cache
+        return
+    folder = tempfile.mkdtemp(prefix="jaxadapt-tests-xla-")
+    config.stash[CACHE_FOLDER] = folder
+    # in the environment for the processes started from here, in the config for this one
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = folder
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+def pytest_unconfigure(config):
+    folder = config.stash.get(CACHE_FOLDER, None)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)

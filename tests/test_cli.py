@@ -14,6 +14,7 @@ import equinox as eqx
 import imageio_ffmpeg
 import jax
 import jax.numpy as jnp
+import matplotlib.image
 import numpy as np
 import pytest
 import statsmodels.api as sm
@@ -772,6 +773,9 @@ def test_psychometric_group_test_p_is_float64(tmp_path, capsys):
     expected = mannwhitneyu(pse["test"], pse["control"], method="asymptotic", use_continuity=False)
     assert float(row["p"]) == pytest.approx(expected.pvalue, rel=1e-6)
     assert 0 < float(row["p"]) < 1e-50
+    # Fig. 13 draws the first 24 participants (6 rows): 170 panels took a
+    # minute to lay out, for a figure 11,200 pixels high.
+    assert matplotlib.image.imread(tmp_path / "psychometric.png").shape[0] < 2000
 
 
 def test_pse_figure_spans_the_placed_pses(tmp_path):

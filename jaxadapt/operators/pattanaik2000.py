@@ -612,9 +612,8 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         Adapt instead to this luminance (cd/m2) for rods and cones, e.g.
         0.01 for the moonlit start of the title-page sequence; at least
         ``goal.LUMINANCE_FLOOR`` (1e-6) counts, as for the goals of frames,
-        so that 0 is a fully dark-adapted viewer (at 0 itself the
-        semi-saturations of Eqs 4-5 are 0/0). With a local background the
-        state is then uniform until the first frame.
+        so that 0 is a fully dark-adapted viewer. With a local background
+        the state is then a uniform map, of ``first_frame``'s size.
 
     Returns
     -------
@@ -628,6 +627,8 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         dtype = first_frame.dtype if floating else jnp.result_type(float)
         check_adaptation(adaptation)
         A = jnp.maximum(jnp.asarray(adaptation, dtype=dtype), goals.LUMINANCE_FLOOR)
+        if params.background != "global" and first_frame is not None:
+            A = jnp.broadcast_to(A, first_frame.shape[:2])  # as run() carries it
         return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
     params = as_dtype(params, first_frame.dtype)

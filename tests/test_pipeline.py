@@ -1,0 +1,110 @@
+"""A sequence through an operator a chunk at a time (:mod:`jaxadapt.pipeline`)."""
+
+import types
+
+import jax
+import numpy as np
+import pytest
+
+from jaxadapt import io, pipeline
+from jaxadapt.operators import classic, jacobs2015, pattanaik2000
+
+
+def _step_source(T=7, H=5, W=13, adaptation=None):
+    """T frames of textured grey, 0.01 cd/m2 for two frames, then 1000."""
+    rng = np.random.default_rng(0)
+    level = np.where(np.arange(T) < 2, 0.01, 1000.0)[:, None, None, None]
+    frames = (rng.uniform(0.5, 2.0, (T, H, W, 3)) * level).astype(np.float32)
+    return pipeline.Source(
+        "step",
+        np.arange(T) / 30.0,
+        np.full(T, 1 / 30.0),
+        lambda idx: frames[idx],
+        lambda idx: np.tile([(W - 1) / 2, (H - 1) / 2], (len(idx), 1)),
+        "log_average",
+        adaptation,
+        30.0,
+    )
+
+
+def _render(op, params, source, size):
+    key = jax.random.key(3)
+    chunks = list(pipeline.chunks(op, params, source, size, key=key))
+    return np.concatenate([out for _, out, _ in chunks]), pipeline.concatenate(
+        [table for _, _, table in chunks]
+    )
+
+
+# (the global 2000 operator: tests/test_cli.py's tunnel in chunks)
+@pytest.mark.parametrize(
+    ("op", "params", "adaptation"),
+    [
+        (pattanaik2000, pattanaik2000.Params(background="gaussian", background_scale=2.0), 0.01),
+        (jacobs2015, jacobs2015.Params(), None),
+        (classic, classic.Params(), None),
+    ],
+)
+def test_chunks_give_the_frames_and_diagnostics_of_one_call(op, params, adaptation):
+    source = _step_source(T=4, adaptation=adaptation)
+    whole, whole_table = _render(op, params, source, size=4)
+    out, table = _render(op, params, source, size=2)
+    np.testing.assert_allclose(out, whole, atol=1e-5)
+    assert not np.allclose(out[1], out[2], atol=1e-3)  # the step is seen
+    for name, column in whole_table.items():
+        np.testing.assert_allclose(table[name], column, rtol=1e-5, atol=1e-7)
+
+
+def test_a_local_background_from_a_given_adaptation_compiles_run_twice(monkeypatch):
+    # init gave a given adaptation as scalars and run carried maps: the
+    # second chunk compiled run again, for three compilations of two shapes.
+    traces = []
+    original = pattanaik2000.frame_goals
+
+    def counting(*args):
+        traces.append(1)
+        return original(*args)
+
+    monkeypatch.setattr(pattanaik2000, "frame_goals", counting)
+    params = pattanaik2000.Params(background="gaussian", background_scale=2.0)
+    source = _step_source(T=7, H=7, W=11, adaptation=0.5)  # a shape no other test uses
+    assert len(list(pipeline.chunks(pattanaik2000, params, source, size=3))) == 3
+    assert len(traces) == 2
+
+
+def test_collected_frames_are_copies_not_views_of_their_chunk():
+    kept, table = pipeline.collect(classic, classic.Params(), _step_source(), keep={0, 4}, size=7)
+    assert sorted(kept) == [0, 4] and len(table["t"]) == 7
+    for frame in kept.values():
+        assert frame.shape == (5, 13, 3) and frame.base is None
+
+
+def test_a_non_finite_display_frame_is_refused_not_written_black():
+    def run(params, frames, dt, *, gaze=None, state=None):  # NaN in the second chunk's last
+        out = np.zeros(frames.shape, np.float32)
+        out[-1, 0, 0, 1] = np.nan if state == 1 else 0.0
+        return out, types.SimpleNamespace(final_state=state + 1)
+
+    broken = types.SimpleNamespace(
+        __name__="broken", init=lambda *a, **k: 0, run=run, diagnostics_table=lambda d: {}
+    )
+    with pytest.raises(FloatingPointError, match=r"^broken: display frame 5 holds non-finite"):
+        list(pipeline.chunks(broken, None, _step_source(T=6), size=3))
+
+
+def test_bad_arguments_are_named(tmp_path):
+    path = tmp_path / "frame.exr"
+    io.write_image(path, np.ones((4, 6, 3), np.float32))
+    for kwargs, message in (
+        ({"paths": []}, "paths: expected at least one HDR file"),
+        ({"fps": 0.0}, "fps: expected a positive frame rate"),
+        ({"fps": float("nan")}, "fps: expected a positive frame rate"),
+        ({"multiplier": -1.0}, "multiplier: expected a positive finite factor"),
+        ({"multiplier": float("nan")}, "multiplier: expected a positive finite factor"),
+        ({"multiplier": 1e-50}, "multiplier: expected a positive finite factor"),
+    ):
+        arguments = {"paths": [path], "fps": 30.0, "multiplier": 1.0} | kwargs
+        with pytest.raises(ValueError, match=f"^{message}"):
+            pipeline.from_files(**arguments)
+    for size in (0, 2.5, "4"):
+        with pytest.raises(ValueError, match="^size: expected a whole number of frames >= 1"):
+            list(pipeline.chunks(classic, classic.Params(), _step_source(), size))
