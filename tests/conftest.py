@@ -41,3 +41,22 @@ def pytest_unconfigure(config):
     folder = config.stash.get(CACHE_FOLDER, None)
     if folder is not None:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.fixture
+def count_calls(monkeypatch):
+    """``count_calls(owner, name)``: a list that gains an entry at each call
+    of ``owner.name`` (a module's function, a class's method). Called while
+    tracing, it counts traces: no new entry means nothing was traced anew."""
+
+    def patch(owner, name):
+        calls, original = [], getattr(owner, name)
+
+        def counting(*args, **kwargs):
+            calls.append(1)
+            return original(*args, **kwargs)
+
+        monkeypatch.setattr(owner, name, counting)
+        return calls
+
+    return patch

@@ -249,17 +249,10 @@ def test_more_frames_of_the_same_shape_do_not_retrace():
     assert len(traces) == 1
 
 
-def test_step_does_not_retrace_for_new_frames(monkeypatch):
+def test_step_does_not_retrace_for_new_frames(count_calls):
     # step built its background function afresh at each call, and tone_map,
     # jitted with it as a static argument, was traced again for every frame.
-    traces = []
-    original = classic.estimate_background
-
-    def counting(*args, **kwargs):
-        traces.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(classic, "estimate_background", counting)
+    traces = count_calls(classic, "estimate_background")
     params = classic.Params(background="gaussian", background_scale=2.0)
     frame = hdr_frame(5, shape=(5, 11))  # a shape no other test uses
     for k in range(3):

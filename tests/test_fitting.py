@@ -646,20 +646,6 @@ def uneven():
     return data, fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
 
 
-def _count_calls(monkeypatch, name):
-    """A list that gains an entry whenever ``fitting.<name>`` is called
-    (traced): ``[]`` afterwards means nothing was traced anew."""
-    calls = []
-    original = getattr(fitting, name)
-
-    def counting(*args, **kwargs):
-        calls.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(fitting, name, counting)
-    return calls
-
-
 def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
     # t0_cone from 20 frames of the 2000 operator, float32, in a queue of 4
     # lanes. At the minimum every step is rejected and the damping grows;
@@ -683,7 +669,7 @@ def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
     assert np.max(np.asarray(fits.steps)) <= 12
 
 
-def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
+def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch, count_calls):
     # Two lanes for six datasets: each lane takes the next dataset when its
     # fit stops, and the host hands the queue over two datasets at a time,
     # so that the weak decay's solve (12 steps) is stopped at a round's end
@@ -693,7 +679,7 @@ def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
     steps = np.asarray(plain.steps)
     np.testing.assert_array_equal(steps, [12, 15, 8, 7, 6, 97])
     monkeypatch.setattr(fitting, "LANES", 2)
-    traces = _count_calls(monkeypatch, "_fit_one")
+    traces = count_calls(fitting, "_fit_one")
     queued = fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
     assert traces == []  # the queue, not the vmapped solve
     np.testing.assert_array_equal(queued.steps, steps)
@@ -707,7 +693,7 @@ def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
 
-def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeypatch):
+def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeypatch, count_calls):
     # The flat row: a -> 0 leaves b undetermined. The solver stops once no
     # step lowers the sum of squares (it is at its rounding floor), but a
     # and b are not identified: not converged, their standard errors
@@ -724,27 +710,20 @@ def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeyp
     np.testing.assert_allclose(f.estimate["c"][0], 0.4, rtol=1e-4)
     # The compiled functions see the lanes, not the datasets: another number
     # of datasets traces nothing anew.
-    traces = []
-    original = fitting._Lane.__init__
-
-    def counting(self, *args):
-        traces.append(1)
-        original(self, *args)
-
-    monkeypatch.setattr(fitting._Lane, "__init__", counting)
+    traces = count_calls(fitting._Lane, "__init__")
     g = fitting.fit(decay, Decay(), ABC, data[1:4], args=T, bounds=UNBOUNDED_C)
     assert traces == []
     np.testing.assert_array_equal(g.steps, [15, 8, 7])
 
 
-def test_a_queue_traces_its_round_once(uneven, monkeypatch):
+def test_a_queue_traces_its_round_once(uneven, monkeypatch, count_calls):
     # The carry that a round hands to the next (the solver's whole state,
     # the damping's included) keeps its dtypes and weak types, so that the
     # rounds after the first reuse its compilation (_lanes is called once
     # when _start is traced and once when _round is).
     data, _ = uneven
     monkeypatch.setattr(fitting, "LANES", 2)
-    traces = _count_calls(monkeypatch, "_lanes")
+    traces = count_calls(fitting, "_lanes")
 
     def model(params, t):  # a model of its own: nothing is compiled for it yet
         return decay(params, t)
@@ -834,7 +813,9 @@ def test_maximum_likelihood_matches_statsmodels_probit():
         assert float(ours.loss[i]) == pytest.approx(log_binomial - ref.llf, rel=1e-9)
 
 
-def test_float32_follows_the_data_and_another_batch_does_not_retrace(decays, monkeypatch):
+def test_float32_follows_the_data_and_another_batch_does_not_retrace(
+    decays, monkeypatch, count_calls
+):
     data, f64 = decays
     # The library default: float64 off, everything in float32.
     with jax.enable_x64(False):
@@ -845,6 +826,6 @@ def test_float32_follows_the_data_and_another_batch_does_not_retrace(decays, mon
         for name in ABC:
             np.testing.assert_allclose(f32.estimate[name], f64.estimate[name], rtol=1e-3)
             np.testing.assert_allclose(f32.se[name], f64.se[name], rtol=1e-2)
-        traces = _count_calls(monkeypatch, "_fit_one")
+        traces = count_calls(fitting, "_fit_one")
         fitting.fit(decay, Decay(), ABC, data.astype(np.float32) + 0.01, **kw)
         assert traces == []

@@ -451,15 +451,8 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
         np.testing.assert_allclose(outs[i], single, atol=1e-12)
 
 
-def test_no_retrace_for_new_values_or_more_frames(monkeypatch):
-    traces = []
-    original = op.tone_map
-
-    def counting(*args):
-        traces.append(1)
-        return original(*args)
-
-    monkeypatch.setattr(op, "tone_map", counting)
+def test_no_retrace_for_new_values_or_more_frames(count_calls):
+    traces = count_calls(op, "tone_map")
     frames = jnp.ones((4, 9, 11, 3))  # a shape no other test uses
     op.run(BARE, frames, 0.03)
     n = len(traces)

@@ -150,15 +150,8 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
         np.testing.assert_allclose(outs[i], single, rtol=1e-10)
 
 
-def test_no_retrace_for_new_values_or_more_steps(monkeypatch):
-    traces = []
-    original = op.tone_map
-
-    def counting(*args):
-        traces.append(1)
-        return original(*args)
-
-    monkeypatch.setattr(op, "tone_map", counting)
+def test_no_retrace_for_new_values_or_more_steps(count_calls):
+    traces = count_calls(op, "tone_map")
     frames = _sequence(H=11, W=13)  # a shape no other test uses
     op.run(P, frames, 0.03)
     n = len(traces)

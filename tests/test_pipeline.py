@@ -54,17 +54,10 @@ def test_chunks_give_the_frames_and_diagnostics_of_one_call(op, params, adaptati
         np.testing.assert_allclose(table[name], column, rtol=1e-5, atol=1e-7)
 
 
-def test_a_local_background_from_a_given_adaptation_compiles_run_twice(monkeypatch):
+def test_a_local_background_from_a_given_adaptation_compiles_run_twice(count_calls):
     # init gave a given adaptation as scalars and run carried maps: the
     # second chunk compiled run again, for three compilations of two shapes.
-    traces = []
-    original = pattanaik2000.frame_goals
-
-    def counting(*args):
-        traces.append(1)
-        return original(*args)
-
-    monkeypatch.setattr(pattanaik2000, "frame_goals", counting)
+    traces = count_calls(pattanaik2000, "frame_goals")
     params = pattanaik2000.Params(background="gaussian", background_scale=2.0)
     source = _step_source(T=7, H=7, W=11, adaptation=0.5)  # a shape no other test uses
     assert len(list(pipeline.chunks(pattanaik2000, params, source, size=3))) == 3

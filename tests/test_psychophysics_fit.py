@@ -87,7 +87,7 @@ def test_float32_follows_inputs_and_matches_float64():
     np.testing.assert_allclose(np.asarray(f32.b1)[ok], f64.b1[ok], rtol=1e-3)
 
 
-def test_vmapped_batch_equals_a_loop_and_does_not_retrace(monkeypatch):
+def test_vmapped_batch_equals_a_loop_and_does_not_retrace(count_calls):
     levels, k, n = _random_datasets(2)
     batch = F.fit(levels, k, n)
     for i in range(4):
@@ -97,14 +97,7 @@ def test_vmapped_batch_equals_a_loop_and_does_not_retrace(monkeypatch):
                 float(getattr(batch, name)[i]), rel=1e-9, abs=1e-12
             )
         assert int(single.flags) == int(batch.flags[i])
-    traces = []
-    original = F._fit_one
-
-    def counting(*args, **kwargs):
-        traces.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(F, "_fit_one", counting)
+    traces = count_calls(F, "_fit_one")
     F.fit(levels, np.minimum(k + 1, n), n)
     F.fit(levels + 0.1, k, n)
     assert traces == []
