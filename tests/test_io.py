@@ -405,3 +405,23 @@ def test_hdr_size_refuses_the_headers_read_hdr_refuses(tmp_path, name, write, ma
     for function in (io.hdr_size, io.read_hdr):
         with pytest.raises(ValueError, match=re.escape(name) + ": " + match):
             function(path)
+
+
+def test_no_module_keeps_openimageio_alive_at_exit():
+    # `jaxadapt psychometric simulate` ended every run with some 140 lines of
+    # "nanobind: leaked ..." about OpenImageIO on stderr: the observer's
+    # classes, which JAX keeps until exit, held io.atomic_path and through
+    # it io's globals past the interpreter's clean-up of modules.
+    import pkgutil
+    import subprocess
+    import sys
+
+    import jaxadapt
+
+    found = pkgutil.walk_packages(jaxadapt.__path__, "jaxadapt.")
+    names = [m.name for m in found if m.name != "jaxadapt.__main__"]  # that one runs the CLI
+    code = f"import importlib\nfor name in {names!r}: importlib.import_module(name)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "jaxadapt.psychophysics.observer" in names
+    assert "leaked" not in done.stderr, done.stderr[:400]

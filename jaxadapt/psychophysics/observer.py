@@ -79,9 +79,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtr
 
-from jaxadapt import scenes
+# io as a module, not ``from jaxadapt.io import atomic_path``: this module's
+# classes live until the interpreter exits (JAX keeps its pytree types), and
+# through them a bare function would keep io's globals, OpenImageIO among
+# them, past the clean-up of modules at exit, where nanobind then lists
+# OpenImageIO's objects as leaked on stderr after every run.
+from jaxadapt import io, scenes
 from jaxadapt.color import photopic_luminance
-from jaxadapt.io import atomic_path
 from jaxadapt.operators import jacobs2015
 from jaxadapt.operators.goal import LUMINANCE_FLOOR
 from jaxadapt.psychophysics import design
@@ -1044,7 +1048,7 @@ def write_trials(path, protocol, experiment):
     exactly (:func:`~jaxadapt.psychophysics.trials.csv_cell`). The file
     appears only once complete. Returns the number of rows."""
     table = trial_table(protocol, experiment)
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
+    with io.atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(table)
         for row in zip(*table.values(), strict=True):
