@@ -980,6 +980,7 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
+    runtime.cache_compilations()  # later runs reuse this one's compiled programs
     console = Console(stderr=True)
     import equinox as eqx
     import jax

@@ -18,10 +18,17 @@ page faults and 3.8 times less wall time (1.16 s against 4.40 s). The price
 is that the process keeps its peak memory until it exits, as JAX keeps GPU
 memory by default.
 The command line turns it on; a library user opts in with one call.
+
+:func:`cache_compilations` keeps XLA's compiled programs on disk, so that a
+later run of the same command reuses them: a second ``jaxadapt psychometric
+fit`` of the same table took 21 s instead of 37 s on that machine (a
+profile of the first: 20.6 s compiling 78 programs).
 """
 
 import ctypes
+import os
 import platform
+from pathlib import Path
 
 #: ``mallopt`` parameters of glibc's ``<malloc.h>``.
 _M_TRIM_THRESHOLD = -1
@@ -54,3 +61,51 @@ def retain_freed_memory():
     settings = ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, _NEVER_TRIM))
     made = [libc.mallopt(p, v) for p, v in settings]  # every one, even after a failure
     return all(made)
+
+
+def cache_compilations(folder=None):
+    """Turn on JAX's persistent compilation cache, in ``folder``.
+
+    Every compiled program, however quick to compile, is written there
+    (the command line compiles dozens of small ones: together they are most
+    of a short run's time) and read back by later processes with the same
+    program, JAX, XLA flags and device. Call it before the first JAX
+    computation. JAX's own settings win: with ``JAX_COMPILATION_CACHE_DIR``
+    in the environment (``""`` turns the cache off) nothing is changed.
+
+    The folder is not bounded in size (JAX bounds it only with the
+    ``filelock`` package, not a dependency): a program takes 10 kB to 1 MB
+    (74 programs, 832 kB, for a ``psychometric fit``), and a new one is
+    written only for a new frame size, operator or option. The folder may
+    be deleted at any time. As JAX's documentation warns, whoever can write
+    to it can make this process run code: the default is the user's own
+    cache folder.
+
+    Parameters
+    ----------
+    folder : str or Path, optional
+        Default: ``$XDG_CACHE_HOME/jaxadapt/xla``, ``~/.cache/jaxadapt/xla``
+        without ``XDG_CACHE_HOME``.
+
+    Returns
+    -------
+    Path or None
+        The folder in use; None where the environment chose, or where the
+        folder cannot be made or written (the run then compiles as usual).
+    """
+    import jax
+
+    if "JAX_COMPILATION_CACHE_DIR" in os.environ:
+        return None
+    if folder is None:
+        folder = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jaxadapt/xla"
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    return folder

@@ -1,5 +1,7 @@
-"""Process settings: freed memory kept for reuse (jaxadapt.runtime)."""
+"""Process settings: freed memory kept for reuse, compiled programs kept on
+disk (jaxadapt.runtime)."""
 
+import os
 import platform
 import subprocess
 import sys
@@ -56,3 +58,42 @@ def test_retained_memory_spares_the_page_faults_of_a_repeated_call():
 def test_retain_freed_memory_reports_what_it_did(monkeypatch):
     monkeypatch.setattr(platform, "system", lambda: "Darwin")
     assert runtime.retain_freed_memory() is False
+
+
+# A process that turns the cache on (with the folder from the environment)
+# and compiles one program; prints the folder in use.
+CACHED = """
+from jaxadapt import runtime
+folder = runtime.cache_compilations()
+import jax
+jax.block_until_ready(jax.jit(lambda x: x * 3 + 1)(2.0))
+print(folder)
+"""
+
+
+def _cached_run(env):
+    done = subprocess.run([sys.executable, "-c", CACHED], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+def test_compilations_are_kept_for_the_next_process(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["XDG_CACHE_HOME"] = str(tmp_path)
+    folder = tmp_path / "jaxadapt" / "xla"
+    assert _cached_run(env) == str(folder)
+    kept = sorted(p.name for p in folder.iterdir())
+    assert kept  # even a program that compiles in milliseconds
+    assert _cached_run(env) == str(folder)
+    assert sorted(p.name for p in folder.iterdir()) == kept  # read back, not compiled again
+
+
+def test_the_environment_chooses_the_compilation_cache(tmp_path):
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path), JAX_COMPILATION_CACHE_DIR="")
+    assert _cached_run(env) == "None"  # "" turns JAX's cache off: left so
+    assert not (tmp_path / "jaxadapt").exists()
+    unwritable = tmp_path / "file"
+    unwritable.write_text("")
+    env = {k: v for k, v in env.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["XDG_CACHE_HOME"] = str(unwritable)  # a file: no folder can be made in it
+    assert _cached_run(env) == "None"
