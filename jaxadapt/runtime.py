@@ -69,8 +69,10 @@ def cache_compilations(folder=None):
     Every compiled program, however quick to compile, is written there
     (the command line compiles dozens of small ones: together they are most
     of a short run's time) and read back by later processes with the same
-    program, JAX, XLA flags and device. Call it before the first JAX
-    computation. JAX's own settings win: with ``JAX_COMPILATION_CACHE_DIR``
+    program, JAX, XLA flags and device. JAX keeps no program with a host
+    callback: those with value checks inside (``equinox.error_if``: the
+    operators' ``run``, the psychometric fits) are compiled every time.
+    Call it before the first JAX computation. JAX's own settings win: with ``JAX_COMPILATION_CACHE_DIR``
     in the environment (``""`` turns the cache off) nothing is changed.
 
     The folder is not bounded in size (JAX bounds it only with the
