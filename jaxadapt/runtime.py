@@ -21,7 +21,7 @@ The command line turns it on; a library user opts in with one call.
 
 :func:`cache_compilations` keeps XLA's compiled programs on disk, so that a
 later run of the same command reuses them: a second ``jaxadapt psychometric
-fit`` of the same table took 21 s instead of 37 s on that machine (a
+fit`` of the same table took 16 s instead of 40 s on that machine (a
 profile of the first: 20.6 s compiling 78 programs).
 """
 
@@ -71,9 +71,10 @@ def cache_compilations(folder=None):
     of a short run's time) and read back by later processes with the same
     program, JAX, XLA flags and device. JAX keeps no program with a host
     callback: those with value checks inside (``equinox.error_if``: the
-    operators' ``run``, the psychometric fits) are compiled every time.
-    Call it before the first JAX computation. JAX's own settings win: with ``JAX_COMPILATION_CACHE_DIR``
-    in the environment (``""`` turns the cache off) nothing is changed.
+    operators' ``run``) are compiled every time. Call it before the first
+    JAX computation. JAX's own settings win: with
+    ``JAX_COMPILATION_CACHE_DIR`` in the environment (``""`` turns the
+    cache off) nothing is changed.
 
     The folder is not bounded in size (JAX bounds it only with the
     ``filelock`` package, not a dependency): a program takes 10 kB to 1 MB

@@ -660,14 +660,19 @@ def _fit_batch(levels, n_yes, n_total, guess, lapse, max_steps):
     )
 
 
+#: The value checks as a program of their own, before the fit's: a program
+#: that raises from inside does so through a host callback, and JAX's
+#: persistent compilation cache keeps no such program
+#: (:func:`jaxadapt.runtime.cache_compilations`).
 _checked = eqx.filter_jit(_check)
 
 
 @eqx.filter_jit
 def _fit(levels, n_yes, n_total, guess, lapse, max_steps):
+    """:func:`_fit_batch` compiled, on inputs already :func:`_checked`."""
     if int(max_steps) < 1:  # static: checked once per value, when traced
         raise ValueError(f"max_steps: expected at least 1, got {max_steps}")
-    return _fit_batch(*_check(levels, n_yes, n_total, guess, lapse), max_steps)
+    return _fit_batch(levels, n_yes, n_total, guess, lapse, max_steps)
 
 
 def fit(levels, n_yes, n_total, *, guess=0.0, lapse=0.0, max_steps=MAX_STEPS):
@@ -723,7 +728,7 @@ def fit(levels, n_yes, n_total, *, guess=0.0, lapse=0.0, max_steps=MAX_STEPS):
     >>> fit(x, jnp.zeros((4, 7, 5)), 30).pse.shape  # 4 x 7 datasets
     (4, 7)
     """
-    return _fit(*_inputs(levels, n_yes, n_total, guess, lapse), max_steps)
+    return _fit(*_checked(*_inputs(levels, n_yes, n_total, guess, lapse)), max_steps)
 
 
 # -- bootstrap ----------------------------------------------------------------
@@ -818,7 +823,7 @@ def bootstrap(
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence: expected a number in (0, 1), got {confidence!r}")
     check_whole("n_resamples", n_resamples, least=2)
-    args = _inputs(levels, n_yes, n_total, guess, lapse)
+    args = _checked(*_inputs(levels, n_yes, n_total, guess, lapse))
     fits = _fit(*args, max_steps)
     parametric = jnp.asarray(method == "parametric")
     static = dict(n_resamples=int(n_resamples), max_steps=int(max_steps))
@@ -894,8 +899,7 @@ def fit_sharded(levels, n_yes, n_total, *, mesh=None, guess=0.0, lapse=0.0, max_
     >>> fit_sharded(x, jnp.array([[2, 9, 15, 21, 28]] * 3), 30).pse.shape
     (3,)
     """
-    args = _inputs(levels, n_yes, n_total, guess, lapse)
-    levels, n_yes, n_total, guess, lapse = _checked(*args)
+    levels, n_yes, n_total, guess, lapse = _checked(*_inputs(levels, n_yes, n_total, guess, lapse))
     batch, L = levels.shape[:-1], levels.shape[-1]
     flat = [a.reshape(-1, L) for a in (levels, n_yes, n_total)]
     rates = [jax.tree.map(lambda r: r.reshape(-1), r) for r in (guess, lapse)]
