@@ -80,9 +80,12 @@ def cache_compilations(folder=None):
     ``filelock`` package, not a dependency): a program takes 10 kB to 1 MB
     (74 programs, 832 kB, for a ``psychometric fit``), and a new one is
     written only for a new frame size, operator or option. The folder may
-    be deleted at any time. As JAX's documentation warns, whoever can write
-    to it can make this process run code: the default is the user's own
-    cache folder.
+    be deleted at any time. JAX writes an entry in place, not atomically:
+    one cut short (the process killed as it wrote, a full disk) is not
+    used, and JAX warns of it at each run that would use it (tried by
+    truncating an entry) until the folder is deleted. As JAX's
+    documentation warns, whoever can write to the folder can make this
+    process run code: the default is the user's own cache folder.
 
     Parameters
     ----------
