@@ -611,6 +611,28 @@ def _source(args):
     return pipeline.from_scene(scene, args.multiplier)
 
 
+def _warn_numbers_out_of_order(files, console):
+    """Warn when the frame numbers in the names of ``files`` (the last run of
+    digits, the rest of the names all alike) neither rise nor fall in the
+    order given: the frames are rendered in that order, and a shell's glob
+    of a sequence numbered without padding gives them sorted as text
+    (``f1 f10 f11 f2 ...``). A sequence reversed on purpose goes one way and
+    passes."""
+    parts = [re.fullmatch(r"(.*?)(\d+)(\D*)", str(f)) for f in files]
+    if len(files) < 3 or not all(parts) or len({(m[1], m[3]) for m in parts}) > 1:
+        return
+    numbers = [int(m[2]) for m in parts]
+    steps = np.sign(np.diff(numbers))
+    if np.all(steps >= 0) or np.all(steps <= 0):
+        return
+    i = int(np.argmax(steps == -steps[steps != 0][0]))  # the first step against the first
+    console.print(
+        f"warning: FILE: {files[i]} comes before {files[i + 1]}: the numbers in the names "
+        "neither rise nor fall, and the frames are rendered in the order given (a shell's "
+        "glob sorts names as text, 10 before 2: pad the numbers, or list them with ls -v)"
+    )
+
+
 def _operator(args, source, fps):
     """The operator module, its parameters (for frames at ``fps``), the plot of
     its diagnostics and whether its frames come display-encoded."""
@@ -675,6 +697,7 @@ def render(args, console):
     _check_options(args)
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
+    _warn_numbers_out_of_order(args.files, console)
     if args.background_scale is not None:
         _check_scale_fits(args.background_scale, source.frames(np.arange(1)).shape[1:3])
     if args.gaze is not None:

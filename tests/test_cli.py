@@ -1001,3 +1001,26 @@ def test_figures_name_what_they_cannot_draw(name, args, message):
 
     with pytest.raises(ValueError, match=message):
         getattr(figures, name)(*args)
+
+
+@pytest.mark.parametrize(
+    ("numbers", "warned"),
+    [
+        ((1, 10, 11, 2, 3), ("f11.exr", "f2.exr")),  # a shell's glob of f1 ... f11
+        ((1, 1, 10, 2), ("f10.exr", "f2.exr")),
+        ((1, 2, 3, 10), None),
+        ((10, 3, 2, 1), None),  # reversed on purpose
+    ],
+)
+def test_frame_numbers_out_of_order_are_warned_of(tmp_path, capsys, numbers, warned):
+    paths = [str(tmp_path / f"f{n}.exr") for n in numbers]
+    for p in set(paths):
+        io.write_image(p, np.ones((4, 6, 3), np.float32))
+    out = tmp_path / "out"
+    status, err = _run(capsys, "render", *paths, "--format", "exr", "--out", str(out))
+    assert status == 0, err
+    if warned is None:
+        assert "warning" not in err
+    else:
+        before, after = (str(tmp_path / name) for name in warned)
+        assert f"warning: FILE: {before} comes before {after}: " in " ".join(err.split())
