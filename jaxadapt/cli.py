@@ -41,7 +41,8 @@ OPERATORS = (
     "ward-jnd",
 )
 CONTACT_FRAMES = 12
-#: Frame rate of FILE sequences unless --fps says otherwise, frames per second.
+#: Frame rate of FILE sequences whose first file gives none, unless --fps
+#: says otherwise, frames per second.
 FILE_FPS = 30.0
 #: Size of a local background estimator unless --background-scale says otherwise, pixels.
 BACKGROUND_SCALE = 8.0
@@ -195,7 +196,8 @@ def build_parser():
         "--fps",
         type=_frame_rate,
         default=None,
-        help="frames per second, 1e-5 to 1e6 (default: 30 for FILE sequences, the scene's own "
+        help="frames per second, 1e-5 to 1e6 (default: for FILEs the first file's "
+        "FramesPerSecond (an EXR's framesPerSecond), else 30; the scene's own "
         "for a built-in scene: 30, or one frame per 30 ms for title-step; the flash scene adds a "
         "frame where the flash starts or ends between two, so that the simulation holds it for "
         "exactly 1/8 s: the outputs show these frames too, at the same rate)",
@@ -588,12 +590,28 @@ def _check_scale_fits(scale, size):
         )
 
 
+def _files_rate(files):
+    """The frame rate of FILEs without ``--fps``: the first file's header's
+    (:func:`jaxadapt.io.frame_rate`), else :data:`FILE_FPS`."""
+    from jaxadapt import io
+
+    rate = io.frame_rate(files[0])
+    if rate is None:
+        return FILE_FPS
+    if not FPS_RANGE[0] <= rate <= FPS_RANGE[1]:
+        raise UsageError(
+            f"{files[0]}: its FramesPerSecond, {rate:g}, is outside {FPS_RANGE[0]:g} to "
+            f"{FPS_RANGE[1]:g} frames/s; give --fps"
+        )
+    return rate
+
+
 def _source(args):
     from jaxadapt import pipeline
     from jaxadapt.scenes import SCENES
 
     if args.files:
-        return pipeline.from_files(args.files, args.fps or FILE_FPS, args.multiplier)
+        return pipeline.from_files(args.files, args.fps or _files_rate(args.files), args.multiplier)
     kwargs = {}
     if args.size is not None:
         kwargs["width"], kwargs["height"] = args.size

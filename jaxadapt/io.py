@@ -107,6 +107,28 @@ def hdr_size(path):
         return (height, width) if header.orientation > 4 else (width, height)
 
 
+def frame_rate(path):
+    """The frame rate a file's header gives, frames/s; None without one.
+
+    OpenEXR's ``framesPerSecond`` (a rational, such as 24000/1001), which
+    OpenImageIO reports as ``FramesPerSecond`` for any format that has it.
+    Runs :func:`read_hdr`'s checks of the header and raises its errors, and
+    ``ValueError`` naming the file for a rate that is not positive and
+    finite (0/0, 30/0).
+    """
+    with _hdr_image(Path(path)) as (_, header):
+        rate = header.spec.getattribute("FramesPerSecond")
+    if rate is None:
+        return None
+    numerator, denominator = rate if isinstance(rate, tuple) else (rate, 1)
+    value = numerator / denominator if denominator else math.inf
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(
+            f"{path}: expected a positive, finite FramesPerSecond, got {numerator}/{denominator}"
+        )
+    return value
+
+
 class _Header(NamedTuple):
     """What :func:`read_hdr` takes from an HDR file's header (:func:`_header`)."""
 

@@ -1024,3 +1024,36 @@ def test_frame_numbers_out_of_order_are_warned_of(tmp_path, capsys, numbers, war
     else:
         before, after = (str(tmp_path / name) for name in warned)
         assert f"warning: FILE: {before} comes before {after}: " in " ".join(err.split())
+
+
+def _exr_at_rate(path, rate):
+    """A small grey EXR whose header gives the frame rate ``rate`` (num, den)."""
+    import OpenImageIO as oiio
+
+    spec = oiio.ImageSpec(6, 4, 3, "float")
+    spec.attribute("FramesPerSecond", oiio.TypeDesc("rational2i"), rate)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(np.full((4, 6, 3), 50.0, np.float32))
+    out.close()
+
+
+def test_files_play_at_the_rate_their_header_gives(tmp_path, capsys):
+    # A 23.976 fps EXR sequence was simulated at 30 fps: the adaptation ran
+    # 25 % fast. The first file's FramesPerSecond is now the default.
+    paths = [str(tmp_path / f"f{k}.exr") for k in range(3)]
+    for p in paths:
+        _exr_at_rate(p, (24000, 1001))
+    for options, dt in (((), 1001 / 24000), (("--fps", "10"), 0.1)):
+        out = tmp_path / f"out{len(options)}"
+        status, err = _run(capsys, "render", *paths, *options, "--format", "exr", "--out", str(out))
+        assert status == 0, err
+        t = [float(row["t"]) for row in csv.DictReader(open(out / "diagnostics.csv"))]
+        np.testing.assert_allclose(np.diff(t), dt, rtol=1e-5)  # t written to 6 digits
+    bad = tmp_path / "bad.exr"
+    _exr_at_rate(bad, (30, 0))
+    status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "bad.exr", "FramesPerSecond, got 30/0")
+    _exr_at_rate(bad, (1, 1_000_000))
+    status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(status, err, "bad.exr", "FramesPerSecond, 1e-06, is outside", "--fps")
