@@ -758,7 +758,7 @@ def render(args, console):
                     if "png" in formats:
                         io.write_image(staging / f"{name}.png", coded[k], encoding)
                     if "exr" in formats:
-                        io.write_image(staging / f"{name}.exr", linear[k])
+                        io.write_image(staging / f"{name}.exr", linear[k], fps=fps)
                     if "pfm" in formats:
                         io.write_image(staging / f"{name}.pfm", linear[k])
                     if i in contact_idx:

@@ -12,6 +12,7 @@ import os
 import re
 import tempfile
 import warnings
+from fractions import Fraction
 from pathlib import Path
 from typing import NamedTuple
 
@@ -20,6 +21,8 @@ import numpy as np
 import OpenImageIO as oiio
 
 _FLOAT_FORMATS = ("float", "half", "double")
+#: The largest term of a header's rational (OpenEXR's ``Rational``: int, unsigned int).
+_INT32_MAX = 2**31 - 1
 #: The colour space of jaxadapt's frames: linear BT.709 primaries, D65 white.
 _BT709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
 #: Its chromaticities as files list them: red, green, blue and white x, y.
@@ -422,12 +425,16 @@ COLOUR_SPACES = {"srgb": "sRGB", "gamma": "Gamma2.2"}
 VIDEO_TRANSFERS = {"srgb": "iec61966-2-1", "gamma": "bt470m"}
 
 
-def write_image(path, pixels, encoding="srgb"):
+def write_image(path, pixels, encoding="srgb", fps=None):
     """Write ``(H, W, C)`` pixels: uint8 (PNG) or float32 (EXR, PFM, TIFF).
 
     ``encoding`` (``"srgb"`` or ``"gamma"``, see :mod:`jaxadapt.display`)
     tags 8-bit pixels with the transfer function they were encoded with, so
-    that colour-managed viewers decode them with it.
+    that colour-managed viewers decode them with it. ``fps``, a frame of a
+    sequence at that rate (frames/s), goes into the header where the format
+    has a place for it (an EXR's ``framesPerSecond``, which
+    :func:`frame_rate` reads back), as the nearest fraction of 32-bit terms
+    with a denominator of at most 1e6 (24000/1001 for 23.976...).
     """
     pixels = np.ascontiguousarray(pixels)
     kind = "uint8" if pixels.dtype == np.uint8 else "float"
@@ -438,6 +445,12 @@ def write_image(path, pixels, encoding="srgb"):
         spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], kind)
         if kind == "uint8":
             spec.attribute("oiio:ColorSpace", COLOUR_SPACES[encoding])
+        if fps is not None:
+            most = min(10**6, int(_INT32_MAX // max(fps, 1.0)))  # the numerator fits too
+            rate = Fraction(fps).limit_denominator(most)
+            spec.attribute(
+                "FramesPerSecond", oiio.TypeDesc("rational2i"), (rate.numerator, rate.denominator)
+            )
         if not (out.open(tmp, spec) and out.write_image(pixels)):
             msg = _one_line(out.geterror())
             out.close()

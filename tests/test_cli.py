@@ -1050,6 +1050,7 @@ def test_files_play_at_the_rate_their_header_gives(tmp_path, capsys):
         assert status == 0, err
         t = [float(row["t"]) for row in csv.DictReader(open(out / "diagnostics.csv"))]
         np.testing.assert_allclose(np.diff(t), dt, rtol=1e-5)  # t written to 6 digits
+        assert io.frame_rate(out / "frame_00002.exr") == pytest.approx(1 / dt, rel=1e-12)
     bad = tmp_path / "bad.exr"
     _exr_at_rate(bad, (30, 0))
     status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))

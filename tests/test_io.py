@@ -425,3 +425,12 @@ def test_no_module_keeps_openimageio_alive_at_exit():
     assert done.returncode == 0, done.stderr
     assert "jaxadapt.psychophysics.observer" in names
     assert "leaked" not in done.stderr, done.stderr[:400]
+
+
+@pytest.mark.parametrize("fps", [24000 / 1001, 30.0, 29.97, 1e-5, 0.3, 123456.789, 1e6])
+def test_a_frame_rate_written_is_read_back(tmp_path, fps):
+    path = tmp_path / "f.exr"
+    io.write_image(path, np.ones((2, 3, 3), np.float32), fps=fps)
+    assert io.frame_rate(path) == pytest.approx(fps, rel=1e-12)
+    io.write_image(path, np.ones((2, 3, 3), np.float32))
+    assert io.frame_rate(path) is None
