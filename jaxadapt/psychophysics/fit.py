@@ -667,6 +667,11 @@ def _fit_batch(levels, n_yes, n_total, guess, lapse, max_steps):
 _checked = eqx.filter_jit(_check)
 
 
+def _checked_inputs(levels, n_yes, n_total, guess, lapse):
+    """:func:`_inputs`, then their values :func:`_checked`."""
+    return _checked(*_inputs(levels, n_yes, n_total, guess, lapse))
+
+
 @eqx.filter_jit
 def _fit(levels, n_yes, n_total, guess, lapse, max_steps):
     """:func:`_fit_batch` compiled, on inputs already :func:`_checked`."""
@@ -728,7 +733,7 @@ def fit(levels, n_yes, n_total, *, guess=0.0, lapse=0.0, max_steps=MAX_STEPS):
     >>> fit(x, jnp.zeros((4, 7, 5)), 30).pse.shape  # 4 x 7 datasets
     (4, 7)
     """
-    return _fit(*_checked(*_inputs(levels, n_yes, n_total, guess, lapse)), max_steps)
+    return _fit(*_checked_inputs(levels, n_yes, n_total, guess, lapse), max_steps)
 
 
 # -- bootstrap ----------------------------------------------------------------
@@ -823,7 +828,7 @@ def bootstrap(
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence: expected a number in (0, 1), got {confidence!r}")
     check_whole("n_resamples", n_resamples, least=2)
-    args = _checked(*_inputs(levels, n_yes, n_total, guess, lapse))
+    args = _checked_inputs(levels, n_yes, n_total, guess, lapse)
     fits = _fit(*args, max_steps)
     parametric = jnp.asarray(method == "parametric")
     static = dict(n_resamples=int(n_resamples), max_steps=int(max_steps))
@@ -899,7 +904,7 @@ def fit_sharded(levels, n_yes, n_total, *, mesh=None, guess=0.0, lapse=0.0, max_
     >>> fit_sharded(x, jnp.array([[2, 9, 15, 21, 28]] * 3), 30).pse.shape
     (3,)
     """
-    levels, n_yes, n_total, guess, lapse = _checked(*_inputs(levels, n_yes, n_total, guess, lapse))
+    levels, n_yes, n_total, guess, lapse = _checked_inputs(levels, n_yes, n_total, guess, lapse)
     batch, L = levels.shape[:-1], levels.shape[-1]
     flat = [a.reshape(-1, L) for a in (levels, n_yes, n_total)]
     rates = [jax.tree.map(lambda r: r.reshape(-1), r) for r in (guess, lapse)]
