@@ -67,8 +67,8 @@ def cache_compilations(folder=None):
     """Turn on JAX's persistent compilation cache, in ``folder``.
 
     Every compiled program, however quick to compile, is written there
-    (a ``psychometric fit`` compiled 78 programs, most of them small, in
-    20.6 s of its 40 s: profiled) and read back by later processes with the same
+    (a profiled ``psychometric fit`` compiled 78 programs, most of them
+    small, in 20.6 s of its 44 s) and read back by later processes with the same
     program, JAX, XLA flags and device. JAX keeps no program with a host
     callback: those with value checks inside (``equinox.error_if``: the
     operators' ``run``) are compiled every time. Call it before the first

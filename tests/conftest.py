@@ -44,6 +44,15 @@ def pytest_unconfigure(config):
 
 
 @pytest.fixture
+def own_cache_env(tmp_path):
+    """The environment of a process that chooses its own compilation cache
+    (:func:`jaxadapt.runtime.cache_compilations`): without the test run's
+    ``JAX_COMPILATION_CACHE_DIR``, with ``XDG_CACHE_HOME`` at ``tmp_path``."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    return dict(env, XDG_CACHE_HOME=str(tmp_path))
+
+
+@pytest.fixture
 def count_calls(monkeypatch):
     """``count_calls(owner, name)``: a list that gains an entry at each call
     of ``owner.name`` (a module's function, a class's method). Called while

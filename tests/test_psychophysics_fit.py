@@ -339,11 +339,10 @@ def test_deviance_is_not_negative_in_float32():
     assert float(f.deviance) >= 0
 
 
-def test_the_fit_is_a_program_the_compilation_cache_keeps(tmp_path):
+def test_the_fit_is_a_program_the_compilation_cache_keeps(tmp_path, own_cache_env):
     # JAX's persistent cache keeps no program with a host callback, which
     # the value checks raise through: with them inside, the fit (3-6 s to
     # compile) was compiled again by every `jaxadapt psychometric fit`.
-    import os
     import subprocess
     import sys
 
@@ -353,9 +352,8 @@ def test_the_fit_is_a_program_the_compilation_cache_keeps(tmp_path):
         "from jaxadapt.psychophysics import fit as F\n"
         "F.fit([-0.1, 0.0, 0.1], [[3, 15, 27]], 30).pse.block_until_ready()\n"
     )
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env["XDG_CACHE_HOME"] = str(tmp_path)
-    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    run = [sys.executable, "-c", code]
+    done = subprocess.run(run, env=own_cache_env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     kept = [p.name for p in (tmp_path / "jaxadapt" / "xla").iterdir()]
     assert any(name.startswith("jit__fit-") for name in kept), sorted(kept)

@@ -1,7 +1,6 @@
 """Process settings: freed memory kept for reuse, compiled programs kept on
 disk (jaxadapt.runtime)."""
 
-import os
 import platform
 import subprocess
 import sys
@@ -77,23 +76,20 @@ def _cached_run(env):
     return done.stdout.strip()
 
 
-def test_compilations_are_kept_for_the_next_process(tmp_path):
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env["XDG_CACHE_HOME"] = str(tmp_path)
+def test_compilations_are_kept_for_the_next_process(tmp_path, own_cache_env):
     folder = tmp_path / "jaxadapt" / "xla"
-    assert _cached_run(env) == str(folder)
+    assert _cached_run(own_cache_env) == str(folder)
     kept = sorted(p.name for p in folder.iterdir())
     assert kept  # even a program that compiles in milliseconds
-    assert _cached_run(env) == str(folder)
+    assert _cached_run(own_cache_env) == str(folder)
     assert sorted(p.name for p in folder.iterdir()) == kept  # read back, not compiled again
 
 
-def test_the_environment_chooses_the_compilation_cache(tmp_path):
-    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path), JAX_COMPILATION_CACHE_DIR="")
-    assert _cached_run(env) == "None"  # "" turns JAX's cache off: left so
+def test_the_environment_chooses_the_compilation_cache(tmp_path, own_cache_env):
+    # "" turns JAX's cache off: left so
+    assert _cached_run(dict(own_cache_env, JAX_COMPILATION_CACHE_DIR="")) == "None"
     assert not (tmp_path / "jaxadapt").exists()
     unwritable = tmp_path / "file"
     unwritable.write_text("")
-    env = {k: v for k, v in env.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env["XDG_CACHE_HOME"] = str(unwritable)  # a file: no folder can be made in it
-    assert _cached_run(env) == "None"
+    # a file: no folder can be made in it
+    assert _cached_run(dict(own_cache_env, XDG_CACHE_HOME=str(unwritable))) == "None"
