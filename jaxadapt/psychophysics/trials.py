@@ -375,7 +375,9 @@ def fit_groups(
     -------
     FitTable
     """
-    arrays = (jnp.asarray(a) for a in (groups.levels, groups.n_yes, groups.n_total))
+    count = len(groups.participant)
+    rows = np.concatenate([np.arange(count), np.zeros(batch_size(count) - count, int)])
+    arrays = (jnp.asarray(a[rows]) for a in (groups.levels, groups.n_yes, groups.n_total))
     options = dict(guess=guess, lapse=lapse)
     if n_resamples:
         boot = psyfit.bootstrap(
@@ -391,15 +393,34 @@ def fit_groups(
         fits = psyfit.fit(*arrays, **options)
         half = ndtri((1 + confidence) / 2) * fits.se_pse
         low, high = fits.pse - half, fits.pse + half
-    low, high = _at_least_the_data(groups, np.asarray(fits.flags), low, high)
     columns = [fits.pse, fits.sigma, fits.b0, fits.b1, fits.se_pse, low, high, fits.loglik]
-    return FitTable(
-        groups.participant,
-        groups.condition,
-        *(np.asarray(c) for c in columns),
-        np.asarray(fits.converged),
-        np.asarray(fits.flags),
-    )
+    columns += [fits.converged, fits.flags]
+    *columns, converged, flags = (np.asarray(c)[:count] for c in columns)
+    columns[5:7] = _at_least_the_data(groups, flags, *columns[5:7])
+    return FitTable(groups.participant, groups.condition, *columns, converged, flags)
+
+
+def batch_size(count):
+    """The number of datasets :func:`fit_groups` fits ``count`` groups as:
+    the next power of two, the groups after the first ``count`` copies of
+    the first (each dataset of the vmapped fit is fitted on its own, and a
+    copy stops when the first does, so it adds no step).
+
+    A compiled fit serves one batch size, and compiling the fit and its
+    bootstrap takes about 15 s of a first ``jaxadapt psychometric fit``
+    (28 s in all, against 12.5 s for the same table again, with the
+    compilation cache of :func:`jaxadapt.runtime.cache_compilations`).
+    With sizes rounded up, tables of 9 to 16 groups share one program: a
+    later table of another size in the range loads it instead of compiling
+    it again. At most twice the datasets are fitted, in a call that takes
+    less time than its compilation.
+
+    Examples
+    --------
+    >>> [batch_size(n) for n in (1, 2, 3, 12, 16, 17, 340)]
+    [1, 2, 4, 16, 16, 32, 512]
+    """
+    return 1 << (count - 1).bit_length()
 
 
 def separating_gap(groups):
