@@ -41,9 +41,6 @@ OPERATORS = (
     "ward-jnd",
 )
 CONTACT_FRAMES = 12
-#: Frame rate of FILE sequences whose first file gives none, unless --fps
-#: says otherwise, frames per second.
-FILE_FPS = 30.0
 #: Size of a local background estimator unless --background-scale says otherwise, pixels.
 BACKGROUND_SCALE = 8.0
 #: Names of the files ``jaxadapt render`` writes.
@@ -591,13 +588,11 @@ def _check_scale_fits(scale, size):
 
 
 def _files_rate(files):
-    """The frame rate of FILEs without ``--fps``: the first file's header's
-    (:func:`jaxadapt.io.frame_rate`), else :data:`FILE_FPS`."""
-    from jaxadapt import io
+    """The frame rate of FILEs without ``--fps``
+    (:func:`jaxadapt.pipeline.files_rate`), refused outside ``--fps``'s range."""
+    from jaxadapt import pipeline
 
-    rate = io.frame_rate(files[0])
-    if rate is None:
-        return FILE_FPS
+    rate = pipeline.files_rate(files)
     if not FPS_RANGE[0] <= rate <= FPS_RANGE[1]:
         raise UsageError(
             f"{files[0]}: its FramesPerSecond, {rate:g}, is outside {FPS_RANGE[0]:g} to "

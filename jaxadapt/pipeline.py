@@ -14,12 +14,14 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt.io import hdr_size, read_hdr
+from jaxadapt.io import frame_rate, hdr_size, read_hdr
 from jaxadapt.spatial import check_value, check_whole
 
 #: Pixels per degree assumed for files, whose viewing geometry is unknown:
 #: a 1920-pixel-wide frame seen across 64 degrees.
 FILE_PIXELS_PER_DEGREE = 30.0
+#: Frame rate of HDR files whose first file's header gives none, frames per second.
+FILE_FPS = 30.0
 
 
 class Source(NamedTuple):
@@ -100,15 +102,24 @@ def from_scene(scene, multiplier=1.0):
     )
 
 
-def from_files(paths, fps, multiplier=1.0):
+def files_rate(paths):
+    """The frame rate of a sequence of HDR files, frames/s: the first file's
+    header's (:func:`jaxadapt.io.frame_rate`: an EXR's framesPerSecond),
+    else :data:`FILE_FPS`."""
+    rate = frame_rate(paths[0])
+    return FILE_FPS if rate is None else rate
+
+
+def from_files(paths, fps=None, multiplier=1.0):
     """A :class:`Source` over HDR files, one frame each, in the order given.
 
     Parameters
     ----------
     paths : sequence of str or Path
         EXR, Radiance HDR, PFM or float TIFF files (:func:`jaxadapt.io.read_hdr`).
-    fps : float
-        Frame rate, frames per second.
+    fps : float, optional
+        Frame rate, frames per second; by default the first file's
+        (:func:`files_rate`: its header's, else :data:`FILE_FPS`).
     multiplier : float
         Factor that calibrates the values to cd/m2.
 
@@ -126,6 +137,7 @@ def from_files(paths, fps, multiplier=1.0):
     paths = [Path(p) for p in paths]
     if not paths:
         raise ValueError("paths: expected at least one HDR file, got none")
+    fps = files_rate(paths) if fps is None else fps
     check_value("fps", fps, lambda f: np.isfinite(f) & (f > 0), "a positive frame rate")
     _check_multiplier(multiplier)
     first = read_hdr(paths[0])

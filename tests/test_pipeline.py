@@ -101,3 +101,16 @@ def test_bad_arguments_are_named(tmp_path):
     for size in (0, 2.5, "4"):
         with pytest.raises(ValueError, match="^size: expected a whole number of frames >= 1"):
             list(pipeline.chunks(classic, classic.Params(), _step_source(), size))
+
+
+def test_files_are_timed_by_the_first_files_frame_rate(tmp_path):
+    # Only the command line read the header's rate: a library user's
+    # 23.976 frames/s EXR sequence was timed at the rate given, which was required.
+    paths = [tmp_path / f"f{i}.exr" for i in range(3)]
+    for path in paths:
+        io.write_image(path, np.ones((2, 3, 3), np.float32), fps=24000 / 1001)
+    np.testing.assert_allclose(pipeline.from_files(paths).dt, 1001 / 24000, rtol=1e-12)
+    np.testing.assert_allclose(pipeline.from_files(paths).times[2], 2002 / 24000, rtol=1e-12)
+    np.testing.assert_allclose(pipeline.from_files(paths, fps=10.0).dt, 0.1)  # given: it wins
+    io.write_image(paths[0], np.ones((2, 3, 3), np.float32))  # no rate in the first file
+    np.testing.assert_allclose(pipeline.from_files(paths).dt, 1 / pipeline.FILE_FPS)
