@@ -80,6 +80,24 @@ def _positive(text):
     return value
 
 
+#: The resolutions ``--pixels-per-degree`` takes: a pixel of 1000 degrees
+#: (more than the visual field) to 10,000 pixels to a degree (100 times
+#: the eye's resolution). Beyond that jacobs2015's blurs, sized in pixels,
+#: outgrow any frame: 3 frames of 64x48 took 14 s at 1e4, minutes at 1e6,
+#: and gave non-finite frames from 1e7.
+PPD_RANGE = (1e-3, 1e4)
+
+
+def _pixels_per_degree(text):
+    value = _positive(text)
+    low, high = PPD_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(
+            f"expected pixels per degree from {low:g} to {high:g}, got {text!r}"
+        )
+    return value
+
+
 #: The frame rates ``--fps`` takes, frames/s: a frame a day (27.8 h) to a
 #: frame a microsecond. Outside them the video's rate rounded to 0 (below
 #: 5e-7, after the whole render) or ffmpeg refused it, and a frame time
@@ -258,10 +276,11 @@ def build_parser():
     )
     render.add_argument(
         "--pixels-per-degree",
-        type=_positive,
+        type=_pixels_per_degree,
         default=None,
-        help="resolution of the frames at the eye: for the foveal goal, and for jacobs2015's "
-        "fovea, acuity loss and afterimage blur (default: the scene's own; 30 for files)",
+        help="resolution of the frames at the eye, 1e-3 to 1e4: for the foveal goal, and for "
+        "jacobs2015's fovea, acuity loss and afterimage blur (default: the scene's own; 30 for "
+        "files)",
     )
     render.add_argument(
         "--out",

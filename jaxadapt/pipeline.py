@@ -171,9 +171,10 @@ def from_files(paths, fps=None, multiplier=1.0):
 def _check_values(frame, path):
     """Refuse a frame ``(H, W, 3)`` read from ``path`` that holds negative,
     NaN or infinite values: a ValueError with the count of each and where
-    the first is. Small negative values are common in real EXRs (a
-    renderer's filter ringing, a camera's black level); ``oiiotool
-    --clamp:min=0`` clips them."""
+    the first is, and the ``oiiotool`` options that repair them. Small
+    negative values are common in real EXRs (a renderer's filter ringing, a
+    camera's black level); ``--clamp:min=0`` clips them, and ``--fixnan
+    black`` sets NaN and infinite pixels to black."""
     bad = ~(np.isfinite(frame) & (frame >= 0))  # one pass for a good frame
     if bad.any():
         kinds = {
@@ -186,10 +187,25 @@ def _check_values(frame, path):
         found = ", ".join(
             f"{n} pixel{'s' * (n > 1)} with {name} values" for name, n in counts.items() if n
         )
+        options, effects = zip(
+            *(
+                (option, effect)
+                for option, effect, kinds in (
+                    (
+                        "--fixnan black",
+                        "sets NaN and infinite pixels to black",
+                        ("NaN", "infinite"),
+                    ),
+                    ("--clamp:min=0", "clips negative values", ("negative",)),
+                )
+                if any(counts[kind] for kind in kinds)
+            ),
+            strict=True,
+        )
         raise ValueError(
             f"{path}: expected finite, non-negative values, got {found} "
-            f"(the first at row {row}, column {column}); oiiotool {path} --clamp:min=0 -o OUT "
-            "clips negative values"
+            f"(the first at row {row}, column {column}); oiiotool {path} {' '.join(options)} "
+            f"-o OUT {' and '.join(effects)}"
         )
 
 

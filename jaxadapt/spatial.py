@@ -62,8 +62,13 @@ def foveal_weights(shape, gaze, pixels_per_degree, fwhm_deg=FOVEA_DEG, dtype=flo
     y = jnp.arange(H, dtype=dtype)[:, None]
     x = jnp.arange(W, dtype=dtype)[None, :]
     d2 = (x - gaze[0]) ** 2 + (y - gaze[1]) ** 2
-    logw = -0.5 * d2 / sigma**2
-    w = jnp.exp(logw - jnp.max(logw))
+    # exp(-d2 / 2 sigma^2) over its largest value, from each pixel's squared
+    # distance beyond the nearest one's: 0 there exactly, so that the weight
+    # there is 1 however narrow the patch (sigma^2 kept from underflowing to
+    # 0). Written as the difference of the two exponents, it was inf - inf,
+    # once compiled, at 1e-6 pixels per degree.
+    excess = d2 - jnp.min(d2)
+    w = jnp.exp(-0.5 * excess / jnp.maximum(sigma**2, jnp.finfo(dtype).tiny))
     return (w / jnp.sum(w)).astype(dtype)
 
 

@@ -212,8 +212,25 @@ def test_bad_values_are_counted_and_located(tmp_path, capsys):
     io.write_image(bad, frame)
     status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
     _assert_one_line_error(
-        status, err, "1 pixel with negative values, 1 pixel with NaN", "row 1, column 3", "--clamp"
+        status,
+        err,
+        "1 pixel with negative values, 1 pixel with NaN",
+        "row 1, column 3",
+        "--fixnan black --clamp:min=0 -o OUT",
     )
+    # NaN and infinite values were told to clip negative ones: now the
+    # repair of what the frame holds, and only that.
+    frame[1, 3, 0], frame[3, 4, 1] = 1.0, np.inf
+    io.write_image(bad, frame)
+    status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
+    _assert_one_line_error(
+        status,
+        err,
+        "1 pixel with NaN values, 1 pixel with infinite values",
+        "row 2, column 0",
+        "--fixnan black -o OUT sets NaN and infinite pixels to black",
+    )
+    assert "clamp" not in err
 
 
 def test_fps_takes_a_fraction(tmp_path, capsys):
@@ -225,6 +242,23 @@ def test_fps_takes_a_fraction(tmp_path, capsys):
     assert _run(capsys, *args, "--out", str(out))[0] == 0
     rows = list(csv.DictReader(open(out / "diagnostics.csv")))
     assert float(rows[1]["t"]) == pytest.approx(1001 / 24000)
+
+
+def test_pixels_per_degree_is_taken_within_its_range(tmp_path, capsys):
+    # 1e-6 stopped the tunnel's render with a traceback (non-finite display
+    # frames: the foveal weights, now fixed), and jacobs2015 ran for minutes
+    # on 3 frames of 64x48 at 1e6.
+    for value in ("1e-4", "2e4"):
+        with pytest.raises(SystemExit) as exit:
+            main(["render", "--pixels-per-degree", value])
+        _assert_one_line_error(
+            exit.value.code, capsys.readouterr().err, "--pixels-per-degree", "0.001 to 10000", value
+        )
+    out = tmp_path / "o"
+    args = ["render", *SMALL, "--pixels-per-degree", "1e-3", "--format", "exr", "--out", str(out)]
+    status, err = _run(capsys, *args)
+    assert status == 0, err
+    assert np.isfinite(io.read_hdr(out / "frame_00000.exr")).all()
 
 
 def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):

@@ -1,5 +1,7 @@
 """Adaptation goals, colour constants and display encodings."""
 
+from functools import partial
+
 import colour
 import jax
 import jax.numpy as jnp
@@ -7,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxadapt import color, display, scenes, spatial
-from jaxadapt.operators import goal
+from jaxadapt.operators import goal, pattanaik2000
 
 
 def test_log_average_floors_black_pixels():
@@ -31,6 +33,24 @@ def test_foveal_weights_are_normalised_and_centred():
     assert float(w[10, 25] / w[10, 20]) == pytest.approx(0.5, rel=1e-6)
     far = spatial.foveal_weights((5, 5), jnp.array([1e4, 1e4]), pixels_per_degree=1.0)
     assert jnp.all(jnp.isfinite(far)) and float(far.sum()) == pytest.approx(1.0)
+
+
+def test_a_foveal_patch_narrower_than_a_pixel_is_the_nearest_pixels():
+    # `jaxadapt render --pixels-per-degree 1e-6` stopped with non-finite
+    # display frames: compiled, the weights were NaN at the two pixels
+    # nearest the gaze (the difference of two exponents of -1e12). Now the
+    # pixels nearest the gaze share the weight, at any narrowness.
+    weights = jax.jit(partial(spatial.foveal_weights, (48, 64), dtype=jnp.float32))
+    for gaze, nearest in (([31.5, 25.2], [(25, 31), (25, 32)]), ([10.0, 5.0], [(5, 10)])):
+        for ppd in (1e-6, 1e-30, 0.0):
+            w = np.asarray(weights(jnp.array(gaze, jnp.float32), jnp.float32(ppd)))
+            expected = np.zeros((48, 64), np.float32)
+            expected[tuple(np.array(nearest).T)] = 1 / len(nearest)
+            np.testing.assert_array_equal(w, expected)
+    frame = jnp.full((48, 64, 3), 10.0, jnp.float32).at[:, :20].set(1e4)
+    params = pattanaik2000.Params(goal="foveal", pixels_per_degree=1e-6)
+    state = pattanaik2000.init(params, frame, gaze=jnp.array([31.5, 25.2]))
+    assert float(state.A_cone) == pytest.approx(10.0, rel=1e-5)
 
 
 def test_foveal_goal_sees_what_the_gaze_sees():
