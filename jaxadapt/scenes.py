@@ -436,9 +436,11 @@ def saccade(start, end, at):
 def read_gaze_csv(path):
     """Read a gaze recording: a CSV of ``t, x, y`` rows (s, pixels).
 
-    A header line (a first line of three cells none of which is a number,
-    ``t,x,y`` or ``Time,X,Y``) is skipped, as is a UTF-8 byte-order mark,
-    which spreadsheets write. ``x`` and ``y`` may both be empty or ``nan``
+    A header line (a first line of three cells none of which is a number)
+    names the columns, in any order and any case: ``t`` or ``time``, ``x``
+    and ``y`` (``x,y,t`` was read as ``t,x,y``, a header of other names is
+    refused); without one they are ``t,x,y``. A UTF-8 byte-order mark,
+    which spreadsheets write, is skipped. ``x`` and ``y`` may both be empty or ``nan``
     where the tracker lost the eye (a blink); one of them alone missing, or
     an infinite coordinate (also one beyond float32's range, in which the
     operators compute), is an error. Times must increase.
@@ -460,8 +462,10 @@ def read_gaze_csv(path):
     from pathlib import Path
 
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"gaze: expected a CSV file of t,x,y rows, got the folder {path}")
     if not path.is_file():
-        raise FileNotFoundError(f"gaze: expected a CSV file of t,x,y rows, got {str(path)!r}")
+        raise FileNotFoundError(f"gaze: {path}: no such file")
     rows = []
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -478,14 +482,18 @@ def read_gaze_csv(path):
         return True
 
     last = None  # line of the row before
+    order = [0, 1, 2]  # the columns of t, x and y
     for line, row in enumerate(csv.reader(text.splitlines()), start=1):
         cells = [c.strip() for c in row]
-        header = line == 1 and len(cells) == 3 and all(c and not number(c) for c in cells)
-        if not any(cells) or header:
+        if line == 1 and len(cells) == 3 and all(c and not number(c) for c in cells):
+            order = _gaze_columns(cells, path)
+            continue
+        if not any(cells):
             continue
         try:
             if len(cells) != 3:
                 raise ValueError
+            cells = [cells[i] for i in order]
             t = float(cells[0])
             xy = [float(c) if c else np.nan for c in cells[1:]]
             if np.isnan(xy[0]) != np.isnan(xy[1]) or np.any(np.abs(xy) > np.finfo(np.float32).max):
@@ -506,6 +514,20 @@ def read_gaze_csv(path):
         raise ValueError(f"gaze: expected at least one t,x,y row in {path}, got none")
     data = np.asarray(rows)
     return data[:, 0], data[:, 1:]
+
+
+def _gaze_columns(header, path):
+    """The columns of ``t``, ``x`` and ``y`` that the ``header`` cells of a
+    gaze file name (:func:`read_gaze_csv`)."""
+    names = {"t": ("t", "time"), "x": ("x",), "y": ("y",)}
+    lower = [cell.lower() for cell in header]
+    columns = [next((i for i, c in enumerate(lower) if c in n), None) for n in names.values()]
+    if None in columns:
+        raise ValueError(
+            f"gaze: expected a header naming the columns t (or time), x and y, in any order, "
+            f"in {path}, got {','.join(header)!r}"
+        )
+    return columns
 
 
 def recorded_gaze(times, points):

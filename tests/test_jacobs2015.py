@@ -583,8 +583,10 @@ def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     assert gaze.tolist() == [[10.0, 20.0], [10.0, 20.0], [30.0, 40.0]]  # the blink holds
     starts_blinking = scenes.recorded_gaze(t[1:], xy[1:])(np.array([0.7, 1.2]))
     assert np.isnan(starts_blinking[0]).all() and starts_blinking[1].tolist() == [30.0, 40.0]
-    with pytest.raises(FileNotFoundError, match="gaze"):
+    with pytest.raises(FileNotFoundError, match="^gaze: .*missing.csv: no such file$"):
         scenes.read_gaze_csv(tmp_path / "missing.csv")
+    with pytest.raises(ValueError, match="^gaze: expected a CSV file .* got the folder"):
+        scenes.read_gaze_csv(tmp_path)
     path.write_text("0.0,10\n")
     with pytest.raises(ValueError, match="line 1"):
         scenes.read_gaze_csv(path)
@@ -605,9 +607,16 @@ def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     path.write_bytes(b"\xef\xbb\xbft,x,y\r\n0,10,20\r\n")
     t, xy = scenes.read_gaze_csv(path)
     assert t.tolist() == [0.0] and xy.tolist() == [[10.0, 20.0]]
-    # Any header of three words (this one was refused as a bad row).
+    # A header in any case (this one was refused as a bad row).
     path.write_text("Time,X,Y\n0,10,20\n")
     assert scenes.read_gaze_csv(path)[0].tolist() == [0.0]
+    # The header names the columns: x,y,t was read as t,x,y, without a word.
+    path.write_text("x,y,T\n10,20,0\n30,40,1\n")
+    t, xy = scenes.read_gaze_csv(path)
+    assert t.tolist() == [0.0, 1.0] and xy.tolist() == [[10.0, 20.0], [30.0, 40.0]]
+    path.write_text("time,gaze_x,gaze_y\n0,10,20\n")
+    with pytest.raises(ValueError, match="naming the columns t .* got 'time,gaze_x,gaze_y'"):
+        scenes.read_gaze_csv(path)
 
 
 def test_jacobs_scenes_are_registered_and_calibrated():
