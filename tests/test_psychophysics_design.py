@@ -264,7 +264,13 @@ def test_padding_groups_and_optional_group_columns(tmp_path):
     [
         ([], "expected a header row, got an empty file"),
         ([HEADER], "expected at least one data row"),
-        ([["participant", "condition", "response"], ["p", "c", 1]], "missing column 'level'"),
+        # the formats it accepts, the plain one of counts among them (that
+        # one was not said: every column was listed as required)
+        (
+            [["participant", "condition", "response"], ["p", "c", 1]],
+            "missing column 'level' .expected the columns level and response, or level, n_yes "
+            "and n_total, and optionally participant and condition; got participant, condition",
+        ),
         (
             [["participant", "condition", "level", "n_yes"], ["p", "c", 0, 1]],
             "missing column 'n_total'",

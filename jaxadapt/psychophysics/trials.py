@@ -140,11 +140,20 @@ def _header(path, header):
     required = TRIAL_COLUMNS if "response" in columns or "n_yes" not in columns else COUNT_COLUMNS
     missing = [c for c in required if c not in columns and c not in OPTIONAL_COLUMNS]
     if missing:
+        formats = [
+            [c for c in f if c not in OPTIONAL_COLUMNS] for f in (TRIAL_COLUMNS, COUNT_COLUMNS)
+        ]
         raise ValueError(
             f"{path}: missing column '{missing[0]}' (expected the columns "
-            f"{', '.join(TRIAL_COLUMNS)} or {', '.join(COUNT_COLUMNS)}; got {', '.join(columns)})"
+            f"{', or '.join(_listed(f) for f in formats)}, and optionally "
+            f"{_listed(OPTIONAL_COLUMNS)}; got {', '.join(columns)})"
         )
     return {c: columns.index(c) for c in required if c in columns}
+
+
+def _listed(names):
+    """``a``, ``a and b``, ``a, b and c``."""
+    return " and ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
 
 
 def _fail(path, rows, bad, column, expected, values):
