@@ -16,6 +16,7 @@ import argparse
 import contextlib
 import csv
 import errno
+import inspect
 import math
 import os
 import re
@@ -160,6 +161,16 @@ def _seed(text):
     return value
 
 
+def _default_sizes(scenes):
+    """``"480x270 tunnel, ..."``: each scene's default frame size, from the
+    defaults of its function's ``width`` and ``height``."""
+    sizes = []
+    for name, scene in scenes.items():
+        parameters = inspect.signature(scene).parameters
+        sizes.append(f"{parameters['width'].default}x{parameters['height'].default} {name}")
+    return ", ".join(sizes)
+
+
 def build_parser():
     from jaxadapt.operators.goal import BACKGROUNDS, GOALS
     from jaxadapt.scenes import SCENES
@@ -197,8 +208,8 @@ def build_parser():
         type=_size,
         default=None,
         metavar="WxH",
-        help="frame size of the built-in scene (default: 480x270 tunnel, 384x256 title-step; "
-        "files keep their own)",
+        help=f"frame size of the built-in scene (default: {_default_sizes(SCENES)}; files keep "
+        "their own)",
     )
     render.add_argument(
         "--duration",

@@ -1093,3 +1093,15 @@ def test_files_play_at_the_rate_their_header_gives(tmp_path, capsys):
     _exr_at_rate(bad, (1, 1_000_000))
     status, err = _run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
     _assert_one_line_error(status, err, "bad.exr", "FramesPerSecond, 1e-06, is outside", "--fps")
+
+
+def test_size_help_gives_each_scenes_default_size(capsys):
+    # It gave the default sizes of two scenes of six.
+    from jaxadapt.scenes import SCENES
+
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    said = " ".join(capsys.readouterr().out.split())
+    for name, scene in SCENES.items():
+        frame = pipeline.from_scene(scene()).frames(np.arange(1))[0]
+        assert f"{frame.shape[1]}x{frame.shape[0]} {name}" in said, name
