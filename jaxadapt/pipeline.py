@@ -168,6 +168,14 @@ def from_files(paths, fps=None, multiplier=1.0):
     )
 
 
+#: The ``oiiotool`` options that repair a frame's bad values, what each
+#: does, and the kinds of bad value it repairs (:func:`_check_values`).
+_REPAIRS = (
+    ("--fixnan black", "sets NaN and infinite pixels to black", ("NaN", "infinite")),
+    ("--clamp:min=0", "clips negative values", ("negative",)),
+)
+
+
 def _check_values(frame, path):
     """Refuse a frame ``(H, W, 3)`` read from ``path`` that holds negative,
     NaN or infinite values: a ValueError with the count of each and where
@@ -187,25 +195,13 @@ def _check_values(frame, path):
         found = ", ".join(
             f"{n} pixel{'s' * (n > 1)} with {name} values" for name, n in counts.items() if n
         )
-        options, effects = zip(
-            *(
-                (option, effect)
-                for option, effect, kinds in (
-                    (
-                        "--fixnan black",
-                        "sets NaN and infinite pixels to black",
-                        ("NaN", "infinite"),
-                    ),
-                    ("--clamp:min=0", "clips negative values", ("negative",)),
-                )
-                if any(counts[kind] for kind in kinds)
-            ),
-            strict=True,
-        )
+        repairs = [
+            (option, effect) for option, effect, kinds in _REPAIRS if any(counts[k] for k in kinds)
+        ]
         raise ValueError(
             f"{path}: expected finite, non-negative values, got {found} "
-            f"(the first at row {row}, column {column}); oiiotool {path} {' '.join(options)} "
-            f"-o OUT {' and '.join(effects)}"
+            f"(the first at row {row}, column {column}); oiiotool {path} "
+            f"{' '.join(o for o, _ in repairs)} -o OUT {' and '.join(e for _, e in repairs)}"
         )
 
 

@@ -29,6 +29,7 @@ import csv
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
@@ -402,11 +403,10 @@ def fit_groups(
         fits = psyfit.fit(*arrays, **options)
         half = ndtri((1 + confidence) / 2) * fits.se_pse
         low, high = fits.pse - half, fits.pse + half
+    fits, low, high = (jax.tree.map(lambda a: np.asarray(a)[:count], x) for x in (fits, low, high))
+    low, high = _at_least_the_data(groups, fits.flags, low, high)
     columns = [fits.pse, fits.sigma, fits.b0, fits.b1, fits.se_pse, low, high, fits.loglik]
-    columns += [fits.converged, fits.flags]
-    *columns, converged, flags = (np.asarray(c)[:count] for c in columns)
-    columns[5:7] = _at_least_the_data(groups, flags, *columns[5:7])
-    return FitTable(groups.participant, groups.condition, *columns, converged, flags)
+    return FitTable(groups.participant, groups.condition, *columns, fits.converged, fits.flags)
 
 
 def batch_size(count):
