@@ -453,8 +453,9 @@ def _staged(out, console, replaces=None, keep=()):
     folders that runs killed outright (SIGKILL) left in ``out`` are named in
     a warning on ``console``: they may also be those of runs still going.
     A full device is said as such, naming ``out`` (:func:`_out_of_space`).
-    Signals are deferred while the files are moved and while the folders
-    are removed (:func:`_signals_deferred`); :data:`_WRITTEN` is set once
+    Signals are deferred while the staging folder is made, while the files
+    are moved and while the folders are removed (:func:`_signals_deferred`):
+    one sent as the folder was made left it, and ``out``; :data:`_WRITTEN` is set once
     the files are all in place.
     """
     out = out.resolve()
@@ -475,21 +476,18 @@ def _staged(out, console, replaces=None, keep=()):
         raise UsageError(f"--out: expected a folder, got the file {out}")
     if replaces is not None and out.is_dir():
         _refuse_folders(out, [p.name for p in out.iterdir() if replaces.fullmatch(p.name)])
+    staging = None
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
-    except OSError as e:
-        unmake()
-        raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
-    left = sorted(p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging)
-    if left:
-        console.print(
-            f"warning: {out} holds {', '.join(left)}: the staging folders of runs that were "
-            "killed (remove them) or are still running",
-            markup=False,
-            soft_wrap=True,
-        )
-    try:
+        with _signals_deferred():  # a signal as it is made is raised where it is removed
+            staging = _staging_folder(out)
+        left = sorted(p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging)
+        if left:
+            console.print(
+                f"warning: {out} holds {', '.join(left)}: the staging folders of runs that were "
+                "killed (remove them) or are still running",
+                markup=False,
+                soft_wrap=True,
+            )
         yield staging
         with _signals_deferred():
             if _SIGNALLED:  # an interrupt that Python ignored (_interruptible)
@@ -506,7 +504,18 @@ def _staged(out, console, replaces=None, keep=()):
         raise
     finally:
         with _signals_deferred():
-            shutil.rmtree(staging, ignore_errors=True)
+            if staging is not None:
+                shutil.rmtree(staging, ignore_errors=True)
+
+
+def _staging_folder(out):
+    """Make ``out`` (and its parents) and a new staging folder in it; a
+    UsageError naming ``out`` if it cannot be written to."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
+    except OSError as e:
+        raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
 
 
 def _out_of_space(error, out):

@@ -349,6 +349,33 @@ def test_a_signal_while_the_outputs_move_waits_until_they_all_have(tmp_path, cap
     )
 
 
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_signal_as_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeypatch, existing):
+    # A SIGTERM just after the staging folder was made (a test sends it as
+    # soon as the folder is seen) came before the clean-up was armed: the
+    # staging folder, and the --out it made, stayed.
+    out = tmp_path / "new" / "out"
+    if existing:
+        out.mkdir(parents=True)
+    mkdtemp = cli.tempfile.mkdtemp
+
+    def signalled_mkdtemp(*args, **kwargs):
+        folder = mkdtemp(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return folder
+
+    monkeypatch.setattr(cli.tempfile, "mkdtemp", signalled_mkdtemp)
+    with pytest.raises(KeyboardInterrupt) as caught:
+        with cli._interruptible(), cli._staged(out, None) as staging:
+            (staging / "a.csv").write_text("new")
+    assert caught.value.args == (signal.SIGTERM,)
+    assert not cli._WRITTEN.is_set()
+    if existing:
+        assert list(out.iterdir()) == []
+    else:
+        assert not (tmp_path / "new").exists()
+
+
 def test_staging_folders_left_by_killed_runs_are_named(tmp_path, capsys):
     out = tmp_path / "out"
     (out / ".jaxadapt-killed").mkdir(parents=True)
