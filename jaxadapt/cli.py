@@ -16,6 +16,7 @@ import argparse
 import contextlib
 import csv
 import errno
+import importlib.metadata
 import inspect
 import math
 import os
@@ -135,8 +136,19 @@ class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line, as every other error of
     the command line (the usage is one ``--help`` away)."""
 
-    def error(self, message):
-        self.exit(2, f"jaxadapt: error: {message} (see {self.prog} --help)\n")
+    def error(self, message, command=None):
+        self.exit(2, f"jaxadapt: error: {message} (see {command or self.prog} --help)\n")
+
+    def parse_args(self, args=None, namespace=None):
+        """The arguments parsed; arguments that no option takes are said with
+        the help of the command they were given to (``jaxadapt render
+        --help``), not the program's, which lists only the commands."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            words = (self.prog, getattr(parsed, "command", None), getattr(parsed, "action", None))
+            command = " ".join(word for word in words if word)
+            self.error(f"unrecognized arguments: {' '.join(extras)}", command)
+        return parsed
 
 
 def _folder(text):
@@ -179,6 +191,9 @@ def build_parser():
         prog="jaxadapt",
         description="Simulate time-dependent visual adaptation to HDR scenes "
         "and render what a viewer would see on an ordinary display.",
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"%(prog)s {importlib.metadata.version('jaxadapt')}"
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     render = sub.add_parser(
@@ -394,9 +409,10 @@ def build_parser():
         action="append",
         default=[],
         metavar="CUE=W",
-        help="mean weight of a cue (afterimage, desaturation, blur) in log10 units of "
-        "brightness per unit of cue, repeatable (default: 0, observers who judge luminance "
-        "only); e.g. --weight desaturation=-0.1 makes desaturated tests look darker",
+        help="weight of a cue (afterimage, desaturation, blur) in log10 units of "
+        "brightness per unit of cue, the same for every observer, repeatable (default: 0, "
+        "observers who judge luminance only); e.g. --weight desaturation=-0.1 makes "
+        "desaturated tests look darker",
     )
     simulate.add_argument(
         "--seed", type=_seed, default=0, help="seed of the simulation (default 0)"
@@ -459,8 +475,12 @@ def _staged(out, console, replaces=None, keep=()):
     the files are all in place.
     """
     out = out.resolve()
-    keep = {Path(p).resolve() for p in keep}
-    for path in sorted(keep):
+    given = [Path(p) for p in keep]
+    keep = {p.resolve() for p in given}
+    # An input is in out by its name there (a link in out would be replaced)
+    # or by what it names (a link elsewhere to a file in out).
+    named = sorted({*keep, *(p.parent.resolve() / p.name for p in given)})
+    for path in named:
         if replaces is not None and path.parent == out and replaces.fullmatch(path.name):
             raise UsageError(
                 f"{path}: an input in --out named as this command's outputs, which a run "
@@ -685,6 +705,26 @@ def _warn_numbers_out_of_order(files, console):
     )
 
 
+def _warn_gaze_off_frame(source, shape, path, console):
+    """Warn when the gaze of ``source`` (recorded in ``path``) leaves frames
+    of ``shape`` (H, W): the operators take the nearest point of the frame
+    (:func:`jaxadapt.operators.goal.fixation`), and a recording in other
+    coordinates (normalised, or a larger screen's) would be held at the
+    frame's edges without a word."""
+    H, W = shape
+    x, y = source.gaze(np.arange(len(source.times))).T
+    off = (x < 0) | (x > W - 1) | (y < 0) | (y > H - 1)  # False for a blink's NaN
+    if off.any():
+        i = int(np.argmax(off))
+        console.print(
+            f"warning: --gaze: {path} leaves the {W}x{H} frame at {off.sum()} of {off.size} "
+            f"frames (first ({x[i]:g}, {y[i]:g}) pixels at {source.times[i]:g} s); there the "
+            "nearest point of the frame is taken",
+            markup=False,
+            soft_wrap=True,
+        )
+
+
 def _operator(args, source, fps):
     """The operator module, its parameters (for frames at ``fps``), the plot of
     its diagnostics and whether its frames come display-encoded."""
@@ -750,10 +790,12 @@ def render(args, console):
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
     _warn_numbers_out_of_order(args.files, console)
+    shape = source.frames(np.arange(1)).shape[1:3]
     if args.background_scale is not None:
-        _check_scale_fits(args.background_scale, source.frames(np.arange(1)).shape[1:3])
+        _check_scale_fits(args.background_scale, shape)
     if args.gaze is not None:
         source = pipeline.with_gaze(source, args.gaze)
+        _warn_gaze_off_frame(source, shape, args.gaze, console)
     # The nominal rate: frames split at a flash's edges are shorter, none longer.
     fps = 1.0 / float(np.max(source.dt))
     if "mp4" in formats and fps < MP4_MIN_FPS:
@@ -878,10 +920,11 @@ def psychometric_fit(args, console):
     tested = [c for c in conditions if c != control] if control in conditions else []
     if not tested:
         no_test = (
-            f"no group test: {args.trials} has no condition {control!r} to compare with "
+            f"no group test: {args.trials} has one condition, {conditions[0]!r}; "
+            "a group test compares two"
+            if len(conditions) == 1
+            else f"no group test: {args.trials} has no condition {control!r} to compare with "
             f"(conditions: {', '.join(map(str, conditions))}); name one with --control"
-            if control not in conditions
-            else f"no group test: {args.trials} has no condition besides {control!r}"
         )
         if args.ranksum is not None:
             raise UsageError(f"--ranksum: applies to the group test, and there is none ({no_test})")

@@ -56,13 +56,16 @@ class Source(NamedTuple):
 
 
 def _check_multiplier(multiplier):
-    """Refuse a multiplier that is not positive and finite in float32 (1e-50
-    is 0 there: every frame would be black)."""
+    """Refuse a multiplier that is not positive and finite in float32: 1e-50
+    is 0 there (every frame would be black), 1e40 infinite. Compared with
+    float32's bounds rather than cast, which warns of the overflow before
+    the message says it."""
+    float32 = np.finfo(np.float32)
     check_value(
         "multiplier",
         multiplier,
-        lambda m: np.isfinite(m) & (np.float32(m) > 0),
-        "a positive finite factor (float32: at least 1.4e-45)",
+        lambda m: (m >= float32.smallest_subnormal) & (m <= float32.max),
+        "a positive finite factor (float32: 1.4e-45 to 3.4e+38)",
     )
 
 

@@ -2,6 +2,7 @@
 
 import csv
 import errno
+import importlib.metadata
 import os
 import shutil
 import signal
@@ -464,6 +465,13 @@ def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write
     assert (tmp_path / "video.mp4").read_bytes() == b"the user's"
     for name in renamed:
         assert (tmp_path / name).read_bytes() == before[inputs[renamed.index(name)]]
+    # An input in --out that is a link, with an output's name: the link was
+    # replaced by the display frame (its target untouched).
+    (tmp_path / "frame_00000.exr").unlink()  # the last run's output
+    (tmp_path / "frame_00000.exr").symlink_to(tmp_path / renamed[0])
+    status, err = _run(capsys, "render", "frame_00000.exr", "--out", ".", "--format", "exr")
+    _assert_one_line_error(status, err, "frame_00000.exr", "may write over")
+    assert (tmp_path / "frame_00000.exr").is_symlink()
 
 
 def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
@@ -585,6 +593,17 @@ def test_jacobs2015_follows_a_recorded_gaze(tmp_path, capsys):
     xs = [float(r["gaze_x"]) for r in rows]
     assert xs[0] == 5 and xs[3] == 5 and xs[5] == 25  # the blink holds the fixation
     assert {"B_L", "C_S", "A"} <= set(rows[0])
+    assert "warning" not in err
+    # A gaze off the frame (here in a larger screen's pixels) is said: the
+    # operator takes the frame's nearest point.
+    gaze.write_text("t,x,y\n0,5,4\n0.1,640,12\n")
+    status, err = _run(capsys, *args, "--duration", "0.2", "--gaze", str(gaze), "--out", str(out))
+    assert status == 0, err
+    said = " ".join(err.split())
+    assert f"warning: --gaze: {gaze} leaves the 32x18 frame at 3 of 6 frames" in said, said
+    assert "first (640, 12) pixels at 0.1 s" in said
+    rows = list(csv.DictReader(open(out / "diagnostics.csv")))
+    assert [float(r["gaze_x"]) for r in rows] == [5, 5, 5, 31, 31, 31]
 
 
 def test_a_blink_in_the_gaze_holds_the_fixation_for_pattanaik2000(tmp_path, capsys):
@@ -673,6 +692,16 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert not (out / "group_test.csv").exists()  # the last run's, removed
     said = " ".join(err.split())  # the console wraps its lines
     assert "no group test" in said and "dark, manipulated" in said and "--control" in said
+    # With one condition no --control can help (it was suggested).
+    one = tmp_path / "one.csv"
+    one.write_text("".join(r for r in trials.open() if ",manipulated," not in r))
+    status, err = _run(
+        capsys, "psychometric", "fit", str(one), "--resamples", "0", "--out", str(out)
+    )
+    assert status == 0, err
+    said = " ".join(err.split())
+    assert "has one condition, 'dark'; a group test compares two" in said, said
+    assert "--control" not in said
     # A participant whose responses are all "yes", and one whose are half
     # "yes" at every level (no slope), have no PSE of their own: said.
     rows = trials.read_text().splitlines()
@@ -1028,6 +1057,33 @@ def test_argument_errors_are_one_line(capsys, argv, option):
     with pytest.raises(SystemExit) as exit:
         main(argv)
     _assert_one_line_error(exit.value.code, capsys.readouterr().err, option, "--help")
+
+
+@pytest.mark.parametrize(
+    "argv, command",
+    [
+        (["render", "--sise"], "jaxadapt render"),
+        (["psychometric", "fit", "t.csv", "--sise"], "jaxadapt psychometric fit"),
+        (
+            ["psychometric", "simulate", "--protocol", "mesopic", "--observers", "2", "extra"],
+            "jaxadapt psychometric simulate",
+        ),
+    ],
+)
+def test_an_unknown_argument_points_to_its_commands_help(capsys, argv, command):
+    # It pointed to `jaxadapt --help`, which lists only the commands.
+    with pytest.raises(SystemExit) as exit:
+        main(argv)
+    err = capsys.readouterr().err
+    _assert_one_line_error(exit.value.code, err, "unrecognized arguments", argv[-1])
+    assert err.strip().endswith(f"(see {command} --help)"), err
+
+
+def test_version_is_the_installed_packages(capsys):
+    with pytest.raises(SystemExit) as exit:
+        main(["--version"])
+    assert exit.value.code == 0
+    assert capsys.readouterr().out == f"jaxadapt {importlib.metadata.version('jaxadapt')}\n"
 
 
 def test_curves_are_drawn_where_adaptation_changes():
