@@ -843,6 +843,7 @@ def render(args, console):
                 tables.append(table)
                 progress.advance(task, len(idx))
         table = pipeline.concatenate(tables)
+        _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
         sheet = figures.contact_sheet(np.stack(contact))
         io.write_image(staging / "contact_sheet.png", sheet, encoding)
@@ -856,6 +857,36 @@ def render(args, console):
         f"wrote {len(names)} files to {out}/ ({', '.join(others)}) for {T} frame{'s' * (T > 1)}",
         soft_wrap=True,
     )
+
+
+#: Unbleached fraction of the cone pigment below which a render warns (:func:`_warn_bleached`).
+BLEACHED = 0.01
+
+
+def _warn_bleached(table, console):
+    """Warn when the 2000 operator's diagnostics ``table`` has the cone
+    pigment all but bleached (``B_cone`` below :data:`BLEACHED`, adapted
+    above about 2e8 cd/m2). Its responses, scaled by ``B_cone`` (Eq 2),
+    then span almost nothing, and the appearance model puts the whole frame
+    near the display's black (Eq 8; ``pfstmo_pattanaik00`` renders the
+    same): the model's prediction, which looks like a failed render, and
+    which luminance far above daylight's more often means frames not in
+    cd/m2."""
+    if "B_cone" not in table:
+        return
+    B = np.asarray(table["B_cone"])
+    bleached = B < BLEACHED
+    if bleached.any():
+        i = int(np.argmin(B))
+        console.print(
+            f"warning: at {bleached.sum()} of {B.size} frames the viewer is adapted where the "
+            f"cone pigment is over {1 - BLEACHED:.0%} bleached (the most at "
+            f"{float(table['t'][i]):g} s, adapted to {float(table['A_cone'][i]):.3g} cd/m2): "
+            "the 2000 model renders such frames near the display's black, as "
+            "pfstmo_pattanaik00 does; frames not in cd/m2 take --multiplier",
+            markup=False,
+            soft_wrap=True,
+        )
 
 
 def _group_tests(table, control, method):

@@ -482,6 +482,25 @@ def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
     _assert_one_line_error(status, err, "bright.exr", "multiplier")
 
 
+def test_a_render_whose_cone_pigment_is_all_but_bleached_says_so(tmp_path, capsys):
+    # Frames of 1e12 cd/m2 (or frames in other units, 1e28) rendered a frame
+    # of the display's black without a word: the model's prediction (the
+    # cones' responses scale with the unbleached pigment), which pfstmo's
+    # operator shares, but one that looks like a failed render.
+    for luminance, warned in ((1e8, False), (1e12, True), (1e28, True)):
+        path = tmp_path / "bright.exr"
+        io.write_image(path, np.full((4, 4, 3), luminance, np.float32))
+        out = tmp_path / f"o{luminance:g}"
+        status, err = _run(capsys, "render", str(path), "--format", "exr", "--out", str(out))
+        assert status == 0, err
+        said = " ".join(err.split())
+        assert ("warning: at 1 of 1 frames" in said) == warned, said
+        if warned:
+            assert "over 99% bleached" in said and "display's black" in said
+            assert "--multiplier" in said
+            assert io.read_hdr(out / "frame_00000.exr").max() < 0.05  # near black, finite
+
+
 def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
     args = ["render", "--scene", "title-step", *SMALL, "--multiplier", "1e38"]
     status, err = _run(capsys, *args, "--out", str(tmp_path / "o"))
