@@ -1215,7 +1215,8 @@ def fit(
         Measurements; leading axes are a batch of datasets fitted at once
         (more than :data:`LANES` of them through a queue of solver lanes,
         see "Batches" in the module notes). NaN or infinite values are left
-        out (a warning says how many).
+        out (a warning says how many). The fit computes in the model's
+        floating dtype, to which the data are cast.
     args : pytree, optional
         Passed to ``model`` unchanged (shared by all datasets; to vary it per
         dataset, ``jax.vmap`` this function over it).
@@ -1285,10 +1286,12 @@ def fit(
         raise ValueError(
             f"model: expected a function returning one array, got {type(out).__name__}"
         )
-    data = jnp.asarray(data)
-    # In the precision the model computes in (float32 data of a float64
-    # model are fitted in float64), at least the default float's.
-    data = data.astype(jnp.result_type(data.dtype, out.dtype, float))
+    # In the precision the model computes in: float32 data of a float64
+    # model are fitted in float64, and float64 data of a float32 model (a
+    # float32 operator's thresholds against NumPy's measurements) in float32,
+    # which is all the model resolves (in float64 its float32 prediction had
+    # float64 derivatives, which JAX refused).
+    data = jnp.asarray(data).astype(jnp.result_type(out.dtype, float))
     event = out.shape
     if data.ndim < len(event) or data.shape[data.ndim - len(event) :] != event:
         raise ValueError(

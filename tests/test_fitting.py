@@ -597,6 +597,27 @@ def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
     np.testing.assert_allclose(float(f.estimate["b"]), float(f64.estimate["b"][0]), rtol=1e-6)
 
 
+def test_float64_data_of_a_float32_model_are_fitted_in_float32(decays):
+    # NumPy's float64 measurements against a model that computes in float32
+    # (as the operators do on float32 frames): JAX refused the fit ("Custom
+    # JVP rule must produce primal and tangent outputs with corresponding
+    # dtypes"), in both modes of the Jacobian.
+    data, f64 = decays
+
+    def decay32(params, t):
+        return decay(params, t).astype(jnp.float32)
+
+    for jac in ("fwd", "bwd"):
+        f = fitting.fit(decay32, Decay(), ABC, data[0], args=T, bounds=UNBOUNDED_C, jac=jac)
+        assert f.estimate["a"].dtype == jnp.float32 and bool(f.converged)
+        g = fitting.fit(
+            decay32, Decay(), ABC, data[0].astype(np.float32), args=T, bounds=UNBOUNDED_C, jac=jac
+        )
+        for name in ABC:  # the fit of the data rounded to float32
+            assert float(f.estimate[name]) == float(g.estimate[name])
+        np.testing.assert_allclose(float(f.estimate["b"]), float(f64.estimate["b"][0]), rtol=1e-4)
+
+
 @pytest.mark.parametrize("empty", ["nan", "weight 0"])
 def test_a_dataset_without_measurements_stops_at_once(decays, empty):
     # Its residuals are all masked to 0: every step's gain ratio is 0/0 and

@@ -449,6 +449,11 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
     for i in range(3):
         single, _ = render(eqx.tree_at(lambda p: p.j1, SMOOTH, j1[i]), frames)
         np.testing.assert_allclose(outs[i], single, atol=1e-12)
+    # The batch passed as it is is named, and a channel field keeps its shape.
+    with pytest.raises(ValueError, match=r"^j1: expected shape \(\) .* jax.vmap"):
+        render(eqx.tree_at(lambda p: p.j1, SMOOTH, j1), frames)
+    with pytest.raises(ValueError, match=r"^b1: expected shape \(3,\) .* got shape \(2, 3\)"):
+        render(eqx.tree_at(lambda p: p.b1, SMOOTH, batch.b1[:2]), frames)
 
 
 def test_no_retrace_for_new_values_or_more_frames(count_calls):
@@ -544,6 +549,10 @@ def test_bad_dt_and_missing_key_are_named():
         ({"b1": (1.2e-3, -1.0, 5.5e-7)}, "b1: expected a positive, finite number"),
         ({"c2": jnp.nan}, "c2: expected a positive, finite number"),
         ({"j1": -0.1}, "j1: expected a finite number >= 0"),
+        # Eq 13's range empty (rho infinite) or upside down (rho turned around).
+        ({"m1": -2.0}, r"m1, m2: expected the upper end .* got m1 = -2.0 and m2 = -2.0"),
+        ({"m1": -3.0}, "m1, m2: expected the upper end"),
+        ({"m2": jnp.nan}, "m1, m2: expected the upper end"),
         # Two bleaching rates for three cones: accepted, then JAX's
         # broadcasting error from inside run.
         ({"b1": (1e-3, 1e-4)}, r"b1: expected shape \(3,\) .* got shape \(2,\)"),

@@ -148,6 +148,16 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
     for i, t0 in enumerate(t0s):
         single, _ = op.run(op.Params(t0_cone=t0), frames, 0.03)
         np.testing.assert_allclose(outs[i], single, rtol=1e-10)
+    # The batch passed as it is: a t0_cone per frame without a word (3 of
+    # them, 3 frames), or JAX's broadcasting errors naming no field.
+    for field in (t0s, t0s[:2]):
+        for call in (
+            lambda p: op.run(p, frames[:3], 0.03),
+            lambda p: op.step(p, op.init(P, frames[0]), frames[0], 0.03),
+            lambda p: op.init(p, frames[0]),
+        ):
+            with pytest.raises(ValueError, match=r"^t0_cone: expected shape \(\) .* jax.vmap"):
+                call(op.Params(t0_cone=field))
 
 
 def test_no_retrace_for_new_values_or_more_steps(count_calls):
@@ -357,6 +367,8 @@ def test_a_state_of_the_wrong_kind_or_shape_is_named():
         op.run(local, frames, 0.1, state=state._replace(A_rod=jnp.ones((5, 4))))
     with pytest.raises(ValueError, match=r"^state: expected a pattanaik2000.State, got tuple"):
         op.run(P, frames, 0.1, state=(1.0, 1.0, 0.5, 0.5))
+    with pytest.raises(ValueError, match=r"^state: expected fields of shape \(\), got A_rod"):
+        op.run(P, frames, 0.1, state=op.init(P, frames[0])._replace(A_rod=jnp.ones(3)))
 
 
 def test_unknown_goal_is_named():

@@ -156,6 +156,19 @@ def test_training_accuracy_exclusion_and_counts():
     )
     np.testing.assert_allclose(design.training_accuracy(t, responses), [0.7, 0.65])
     np.testing.assert_array_equal(design.excluded(A, t, responses), [False, True])
+    # Without training trials no one is excluded (0 of 0 correct excluded everyone).
+    untrained = design.Protocol(
+        name="untrained",
+        standard=1.0,
+        tests=(0.5, 0.8, 1.25, 2.0),
+        blocks=(design.Block("main", (("control", 20),)),),
+        conditions=("control",),
+    )
+    u = design.trial_list(untrained, jax.random.key(5))
+    assert not np.any(np.asarray(u.training))
+    np.testing.assert_array_equal(
+        design.excluded(untrained, u, jnp.zeros((2, u.level.size))), False
+    )
     n_yes, n_total = design.counts(A, t, responses)
     assert n_yes.shape == n_total.shape == (2, 2, 5)
     np.testing.assert_array_equal(n_total[0], np.full((2, 5), 30))

@@ -7,6 +7,8 @@ inside ``jit`` with ``equinox.error_if``, which raises
 ``equinox.EquinoxRuntimeError`` with the same kind of message.
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -108,6 +110,24 @@ def _bad_frames(frames):
 
 def _frames_message(name):
     return f"{name}: expected finite, non-negative luminance (cd/m2)"
+
+
+def check_one_parameter_set(params, shapes=None):
+    """Refuse ``params`` whose numeric fields are not one parameter set's:
+    scalars, or the shape ``shapes[name]`` gives a field (``ValueError``
+    naming the field). Inside ``jax.vmap`` a batch of parameter sets has
+    these shapes; passed to ``run`` as it is, ``t0_cone`` of shape ``(T,)``
+    gave one time constant per frame without a word, and other shapes
+    JAX's broadcasting errors, naming no field."""
+    shapes = shapes or {}
+    for field in dataclasses.fields(params):
+        value = getattr(params, field.name)
+        shape = shapes.get(field.name, ())
+        if eqx.is_array(value) and value.shape != shape:
+            raise ValueError(
+                f"{field.name}: expected shape {shape} in one parameter set (for several, "
+                f"jax.vmap over a batch of Params), got shape {value.shape}"
+            )
 
 
 def as_dtype(tree, dtype):

@@ -105,6 +105,7 @@ from jaxadapt.operators.checks import (
     check_fields,
     check_frames,
     check_frames_and_dt,
+    check_one_parameter_set,
 )
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_average, frame_centre
 from jaxadapt.physiology import kinetics
@@ -269,6 +270,14 @@ class Params(eqx.Module):
                     f"{jnp.shape(value)}"
                 )
         check_value("rho_step", self.rho_step, lambda v: v >= 0, ">= 0 log10 units")
+        # m1 = m2 divided by 0 in Eq 13 (rho infinite), m1 < m2 turned rho around.
+        if not any(isinstance(m, jax.core.Tracer) for m in (self.m1, self.m2)):
+            m1, m2 = np.asarray(self.m1), np.asarray(self.m2)
+            if not np.all(m1 > m2):
+                raise ValueError(
+                    "m1, m2: expected the upper end of the mesopic range above the lower "
+                    f"(log10 cd/m2), got m1 = {m1.tolist()} and m2 = {m2.tolist()}"
+                )
         # M >= 1 makes sigma of Eq 2 NaN (and M = 0 infinite): a black frame.
         check_value("plateau_max", self.plateau_max, lambda v: (v > 0) & (v < 1), "in (0, 1)")
         check_fields(self, positive=POSITIVE_FIELDS, non_negative=NON_NEGATIVE_FIELDS)
@@ -913,6 +922,7 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
 @eqx.filter_jit
 def _init(params, first_frame, gaze, key, adaptation):
     guard = check_frames(first_frame, 3, "first_frame")
+    check_one_parameter_set(params, CHANNEL_FIELDS)
     params = as_dtype(params, first_frame.dtype)
     state = _initial_state(params, first_frame, gaze, key, adaptation)
     return state._replace(A=state.A + guard)
@@ -977,6 +987,7 @@ def _step(params, state, frame, dt, gaze):
         raise ValueError(
             f"frame: expected the shape of the state's maps {state.B.shape}, got {frame.shape}"
         )
+    check_one_parameter_set(params, CHANNEL_FIELDS)
     params, state, dt = as_dtype((params, state, dt[0]), frame.dtype)
     state = state._replace(A=state.A + guard)
     return _frame(params, state, frame, dt, gaze)
@@ -1031,6 +1042,7 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, key, state):
     guard, dt = check_frames_and_dt(frames, dt, 4)
+    check_one_parameter_set(params, CHANNEL_FIELDS)
     params, state, dt = as_dtype((params, state, dt), frames.dtype)
     if state is None:
         state = _initial_state(params, frames[0], gaze[0], key)

@@ -52,6 +52,7 @@ from jaxadapt.operators.checks import (
     check_fields,
     check_frames,
     check_frames_and_dt,
+    check_one_parameter_set,
     check_rgb,
 )
 from jaxadapt.physiology import kinetics
@@ -631,6 +632,7 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
             A = jnp.broadcast_to(A, first_frame.shape[:2])  # as run() carries it
         return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
+    check_one_parameter_set(params)
     params = as_dtype(params, first_frame.dtype)
     G_rod, G_cone = frame_goals(params, first_frame, _fixation(first_frame, gaze))
     return static_state(params, G_rod + guard, G_cone + guard)
@@ -698,6 +700,7 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze):
     guard, dt = check_frames_and_dt(frame, dt, 3, "frame")
+    check_one_parameter_set(params)
     params, state, dt, gaze = as_dtype((params, state, dt[0], gaze), frame.dtype)
     state = jax.tree.map(lambda s: s + guard, state)
     gaze = _fixation(frame, gaze)
@@ -758,11 +761,11 @@ def _checked_state(state, shape, guard):
     a fit through ``run``)."""
     if not isinstance(state, State):
         raise ValueError(f"state: expected a pattanaik2000.State, got {type(state).__name__}")
+    shapes = "()" if shape == () else f"() or {shape} (the goals' shape)"
     for name, field in zip(State._fields, state, strict=True):
         if jnp.shape(field) not in ((), shape):
             raise ValueError(
-                f"state: expected fields of shape () or {shape} (the goals' shape), got "
-                f"{name} of shape {jnp.shape(field)}"
+                f"state: expected fields of shape {shapes}, got {name} of shape {jnp.shape(field)}"
             )
     return State(*(jnp.broadcast_to(field + guard, shape) for field in state))
 
@@ -770,6 +773,7 @@ def _checked_state(state, shape, guard):
 @eqx.filter_jit
 def _run(params, frames, dt, gaze, state):
     guard, dt = check_frames_and_dt(frames, dt, 4)
+    check_one_parameter_set(params)
     params, state, dt, gaze = as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
     if gaze is not None and gaze.shape != (T, 2):

@@ -385,7 +385,9 @@ def training_accuracy(trials, responses):
 
 def excluded(protocol, trials, responses):
     """Whether a participant is excluded: fewer than ``protocol.exclusion`` of
-    the training trials correct (§4.1.1: "less than 70% of the time").
+    the training trials correct (§4.1.1: "less than 70% of the time"). A
+    protocol without training trials excludes no one: there is nothing to
+    score (it excluded everyone, with 0 of 0 correct).
 
     Examples
     --------
@@ -393,7 +395,8 @@ def excluded(protocol, trials, responses):
     >>> bool(excluded(AFTERIMAGE, trials, (trials.level > 0).astype(float)))
     False
     """
-    return training_accuracy(trials, responses) < protocol.exclusion
+    scored = jnp.any(trials.training, axis=-1)
+    return scored & (training_accuracy(trials, responses) < protocol.exclusion)
 
 
 def counts(protocol, trials, responses):
