@@ -579,12 +579,14 @@ def _numeric_fields(params):
 
 
 def _not_fittable(params, name):
-    """Why the numeric field ``name`` of ``params`` cannot be fitted, or ``""``
-    if it is not a field or not a number (a choice such as a string)."""
+    """Why the field ``name`` of ``params`` cannot be fitted, or ``""`` if
+    it is not a field."""
     field = next((f for f in dataclasses.fields(params) if f.name == name), None)
     value = getattr(params, name, None)
-    if field is None or not eqx.is_array_like(value):
+    if field is None:
         return ""
+    if not eqx.is_array_like(value):  # a choice: 'goal' "is not a parameter" misled
+        return f"is a choice ({value!r}), not a number"
     if field.metadata.get("static", False):
         return "is a static field"
     if isinstance(value, jax.Array | np.ndarray | np.generic):
@@ -605,7 +607,7 @@ def _spec(params, names, bounds):
             raise ValueError(
                 f"names: {name!r} of {type(params).__name__} {why}; a fitted field must "
                 "hold a JAX floating-point array (e.g. eqx.field(converter=jnp.asarray) and "
-                "1.0, not 1)"
+                f"1.0, not 1); valid names: {', '.join(valid)}"
             )
     if unknown:
         raise ValueError(
@@ -1339,10 +1341,18 @@ def fit(
     batch = data.shape[: data.ndim - len(event)]
     data = data.reshape((-1,) + event)
     weights = weights.reshape((-1,) + event)
-    if traced or data.shape[0] <= LANES:
-        fits = _fit(problem, data, weights)
-    else:
-        fits = _queue(problem, data, weights, LANES)
+    try:
+        if traced or data.shape[0] <= LANES:
+            fits = _fit(problem, data, weights)
+        else:
+            fits = _queue(problem, data, weights, LANES)
+    except NotImplementedError as e:  # JAX's own says "Differentiation rule for 'custom_lin'"
+        if jac != "fwd":
+            raise
+        raise NotImplementedError(
+            f"model: no forward-mode derivative ({e}); fit a model that supports reverse "
+            "mode only, such as one through diffrax, with jac='bwd'"
+        ) from e
     return jax.tree.map(lambda a: jnp.asarray(a.reshape(batch + a.shape[1:])), fits)
 
 

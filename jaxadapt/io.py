@@ -426,7 +426,9 @@ VIDEO_TRANSFERS = {"srgb": "iec61966-2-1", "gamma": "bt470m"}
 
 
 def write_image(path, pixels, encoding="srgb", fps=None):
-    """Write ``(H, W, C)`` pixels: uint8 (PNG) or float32 (EXR, PFM, TIFF).
+    """Write ``(H, W, C)`` pixels: uint8 for PNG (and JPEG), floating point
+    for EXR, Radiance HDR and PFM, either for TIFF; other pixels are refused
+    before anything is written (:func:`_check_pixels`).
 
     ``encoding`` (``"srgb"`` or ``"gamma"``, see :mod:`jaxadapt.display`)
     tags 8-bit pixels with the transfer function they were encoded with, so
@@ -437,6 +439,7 @@ def write_image(path, pixels, encoding="srgb", fps=None):
     with a denominator of at most 1e6 (24000/1001 for 23.976...).
     """
     pixels = np.ascontiguousarray(pixels)
+    _check_pixels(path, pixels)
     kind = "uint8" if pixels.dtype == np.uint8 else "float"
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(path))
@@ -456,6 +459,33 @@ def write_image(path, pixels, encoding="srgb", fps=None):
             out.close()
             raise OSError(f"{path}: cannot write ({msg})")
         out.close()
+
+
+#: Formats of 8-bit display values and of floating-point values (TIFF holds either).
+EIGHT_BIT_FORMATS = (".png", ".jpg", ".jpeg")
+FLOAT_FORMATS = (".exr", ".hdr", ".pfm")
+
+
+def _check_pixels(path, pixels):
+    """Refuse pixels :func:`write_image` cannot write to ``path`` as they
+    are: not ``(H, W, C)`` with 1 to 4 channels, floats for an 8-bit format
+    (written unencoded, a linear 0.5 as 128: too dark on any display) or
+    integers for a floating-point one."""
+    if pixels.ndim != 3 or not 1 <= pixels.shape[2] <= 4:
+        raise ValueError(
+            f"pixels: expected shape (H, W, C) with 1 to 4 channels, got shape {pixels.shape}"
+        )
+    suffix = Path(path).suffix.lower()
+    if suffix in EIGHT_BIT_FORMATS and pixels.dtype != np.uint8:
+        raise ValueError(
+            f"{path}: expected uint8 display-encoded pixels for a {suffix} file, got "
+            f"{pixels.dtype} (encode linear values first: jaxadapt.display.to_uint8("
+            "jaxadapt.display.encode_srgb(pixels)))"
+        )
+    if suffix in FLOAT_FORMATS and not np.issubdtype(pixels.dtype, np.floating):
+        raise ValueError(
+            f"{path}: expected floating-point pixels for a {suffix} file, got {pixels.dtype}"
+        )
 
 
 @contextlib.contextmanager

@@ -7,6 +7,7 @@ call of the operator's ``run``, started from the state the previous chunk
 ended in, so the result equals one call over the whole sequence.
 """
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -118,8 +119,10 @@ def from_files(paths, fps=None, multiplier=1.0):
 
     Parameters
     ----------
-    paths : sequence of str or Path
-        EXR, Radiance HDR, PFM or float TIFF files (:func:`jaxadapt.io.read_hdr`).
+    paths : str, Path or a sequence of them
+        EXR, Radiance HDR, PFM or float TIFF files (:func:`jaxadapt.io.read_hdr`):
+        one (a still image; a string was taken as a sequence of one-letter
+        paths) or the frames of a sequence.
     fps : float, optional
         Frame rate, frames per second; by default the first file's
         (:func:`files_rate`: its header's, else :data:`FILE_FPS`).
@@ -137,7 +140,7 @@ def from_files(paths, fps=None, multiplier=1.0):
         its chunk is read, a frame that holds negative, NaN or infinite
         values.
     """
-    paths = [Path(p) for p in paths]
+    paths = [Path(paths)] if isinstance(paths, (str, os.PathLike)) else [Path(p) for p in paths]
     if not paths:
         raise ValueError("paths: expected at least one HDR file, got none")
     fps = files_rate(paths) if fps is None else fps
@@ -276,8 +279,14 @@ def collect(op, params, source, keep, size=32, key=None):
     """Run ``op`` over ``source``; keep the display frames at indices ``keep``.
 
     Returns ``({index: frame (H, W, 3)}, table)``: the kept frames and the
-    whole sequence's diagnostics (:func:`chunks`, :func:`concatenate`).
+    whole sequence's diagnostics (:func:`chunks`, :func:`concatenate`). An
+    index that is not a frame's is refused before anything runs (it was
+    left out of the frames without a word).
     """
+    T = len(source.times)
+    keep = {check_whole("keep", i) for i in keep}
+    if outside := sorted(i for i in keep if i >= T):
+        raise ValueError(f"keep: expected frame indices from 0 to {T - 1}, got {outside}")
     frames, tables = {}, []
     for idx, out, table in chunks(op, params, source, size, key):
         # copies: a view of ``out`` would hold the whole chunk in memory

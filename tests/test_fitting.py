@@ -168,6 +168,21 @@ def test_gradient_through_the_diffrax_path_matches_finite_differences():
     _check_gradient(model, jnp.log(jnp.array([40.0, 16.0])), 1e-3, forward=False, rtol=1e-5)
 
 
+def test_a_reverse_mode_only_model_fitted_forward_is_pointed_to_bwd():
+    # JAX's "Differentiation rule for 'custom_lin' not implemented", alone.
+    class Rates(eqx.Module):
+        tau: jax.Array = eqx.field(default=40.0, converter=jnp.asarray)
+
+    ts = jnp.linspace(0.0, 4.0, 5)
+    goal = kinetics.goal_path(jnp.array([0.0, 4.0]), jnp.array([5.0, 5.0]))
+
+    def model(params, ts):
+        return kinetics.integrate(kinetics.bleaching_rhs, 0.5, ts, (goal, params.tau, 16.0))
+
+    with pytest.raises(NotImplementedError, match=r"^model: no forward-mode .* jac='bwd'"):
+        fitting.fit(model, Rates(), "tau", np.full(5, 0.5), args=ts)
+
+
 # -- recovery, flags and masks on the threshold time course --------------------
 #
 # Every fit of the time course below has data of shape (4, 44) and the same
@@ -305,7 +320,11 @@ def test_bad_input_is_named():
         fitting.fit(log_threshold, START, ("t0_rod", "t0_cones"), data, args=ARGS)
     for name in NAMES + ("c_rod", "n", "white_factor"):
         assert name in str(error.value)  # the valid names are listed
-    with pytest.raises(ValueError, match="'goal' is not a parameter.*valid names: n, t0_rod"):
+    # A choice, not "not a parameter" (it is one).
+    with pytest.raises(
+        ValueError,
+        match=r"'goal' of Params is a choice \('log_average'\), not a number.*names: n, t0_rod",
+    ):
         fitting.fit(log_threshold, START, "goal", data, args=ARGS)
     with pytest.raises(ValueError, match="names: expected each parameter once"):
         fitting.fit(log_threshold, START, ("t0_rod", "t0_rod"), data, args=ARGS)

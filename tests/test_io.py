@@ -58,6 +58,23 @@ def test_hdr_formats_round_trip(tmp_path, suffix):
     np.testing.assert_allclose(io.read_hdr(path), image, rtol=rtol)
 
 
+@pytest.mark.parametrize(
+    "name, pixels, match",
+    [
+        # A linear float frame was written to PNG unencoded (0.5 as 128, too dark).
+        ("f.png", np.full((4, 4, 3), 0.5, np.float32), r"f.png: expected uint8 .* got float32"),
+        ("f.png", np.zeros((4, 4, 3), np.uint16), "f.png: expected uint8"),
+        ("f.exr", np.zeros((4, 4, 3), np.uint8), "f.exr: expected floating-point pixels"),
+        # Two axes: an IndexError of the header's third.
+        ("f.exr", np.ones((4, 5), np.float32), r"pixels: expected shape \(H, W, C\)"),
+    ],
+)
+def test_pixels_a_format_cannot_hold_as_they_are_are_refused(tmp_path, name, pixels, match):
+    with pytest.raises(ValueError, match=match):
+        io.write_image(tmp_path / name, pixels)
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("encoding, chunk", [("srgb", b"sRGB"), ("gamma", b"gAMA")])
 def test_png_is_tagged_with_its_encoding(tmp_path, encoding, chunk):
     # PNG (ISO/IEC 15948): an sRGB chunk, or a gAMA chunk holding 1/2.2 x 1e5

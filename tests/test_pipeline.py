@@ -70,6 +70,13 @@ def test_collected_frames_are_copies_not_views_of_their_chunk():
     assert sorted(kept) == [0, 4] and len(table["t"]) == 7
     for frame in kept.values():
         assert frame.shape == (5, 13, 3) and frame.base is None
+    # An index past the end was left out without a word.
+    with pytest.raises(
+        ValueError, match=r"^keep: expected frame indices from 0 to 6, got \[7, 9\]"
+    ):
+        pipeline.collect(classic, classic.Params(), _step_source(), keep={0, 7, 9})
+    with pytest.raises(ValueError, match="^keep: expected a whole number"):
+        pipeline.collect(classic, classic.Params(), _step_source(), keep={-1})
 
 
 def test_a_non_finite_display_frame_is_refused_not_written_black():
@@ -118,3 +125,14 @@ def test_files_are_timed_by_the_first_files_frame_rate(tmp_path):
     np.testing.assert_allclose(pipeline.from_files(paths, fps=10.0).dt, 0.1)  # given: it wins
     io.write_image(paths[0], np.ones((2, 3, 3), np.float32))  # no rate in the first file
     np.testing.assert_allclose(pipeline.from_files(paths).dt, 1 / pipeline.FILE_FPS)
+
+
+def test_one_path_is_one_still_image(tmp_path, monkeypatch):
+    # A string was a sequence of one-letter paths ("i: no such file"), a
+    # Path not iterable.
+    monkeypatch.chdir(tmp_path)
+    io.write_image(tmp_path / "still.exr", np.full((2, 3, 3), 7.0, np.float32))
+    for path in ("still.exr", str(tmp_path / "still.exr"), tmp_path / "still.exr"):
+        source = pipeline.from_files(path)
+        assert len(source.times) == 1
+        np.testing.assert_array_equal(source.frames(np.arange(1)), np.full((1, 2, 3, 3), 7.0))

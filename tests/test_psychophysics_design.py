@@ -398,6 +398,10 @@ def test_fit_groups_writes_fits_csv(tmp_path):
     np.testing.assert_allclose(groups.levels, np.broadcast_to(A.levels, shape), atol=1e-12)
     wald = trials.fit_groups(groups, key=None, n_resamples=0)
     np.testing.assert_allclose(wald.ci_high - wald.pse, 1.959964 * wald.se_pse, rtol=1e-6)
+    with pytest.raises(
+        ValueError, match=r"^n_resamples: expected 0 \(Wald intervals\) or at least 2"
+    ):
+        trials.fit_groups(groups, key=jax.random.key(0), n_resamples=1)
     for r, pse in zip(written, wald.pse, strict=True):
         assert float(r["pse"]) == float(pse)  # not str's 12 digits (colour's printing)
         assert float(r["ci_low"]) < float(r["pse"]) < float(r["ci_high"])

@@ -85,6 +85,10 @@ def test_float32_follows_inputs_and_matches_float64():
     assert np.all(np.asarray(f32.converged)[ok])
     np.testing.assert_allclose(np.asarray(f32.pse)[ok], f64.pse[ok], rtol=1e-3, atol=1e-4)
     np.testing.assert_allclose(np.asarray(f32.b1)[ok], f64.b1[ok], rtol=1e-3)
+    # A Python number follows the arrays (n_total=30.0 made it float64).
+    x, k32 = (a.astype(np.float32) for a in _pad(levels, k))
+    for total in (40, 40.0):  # n < 40 trials at each level
+        assert F.fit(x, k32, total).pse.dtype == jnp.float32
 
 
 def test_vmapped_batch_equals_a_loop_and_does_not_retrace(count_calls):

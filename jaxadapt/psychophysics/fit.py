@@ -606,7 +606,9 @@ def _inputs(levels, n_yes, n_total, guess, lapse):
             "levels: expected an array with levels on the last axis, got "
             + ("a scalar" if not shape else f"shape {shape}, no levels")
         )
-    dtype = jnp.result_type(*(a.dtype for a in arrays), float)
+    # The arrays, not their dtypes: a Python number keeps JAX's weak type and
+    # follows the arrays (n_total=30.0 made float32 data a float64 fit).
+    dtype = jnp.result_type(*arrays, float)
     levels, n_yes, n_total = (jnp.broadcast_to(a.astype(dtype), shape) for a in arrays)
     guess, lapse = (
         _batch_rate(v, n, shape[:-1], dtype) for v, n in ((guess, "guess"), (lapse, "lapse"))

@@ -385,6 +385,8 @@ def fit_groups(
     -------
     FitTable
     """
+    if n_resamples == 1:  # the bootstrap's own message asked for >= 2 only
+        raise ValueError("n_resamples: expected 0 (Wald intervals) or at least 2, got 1")
     count = len(groups.participant)
     rows = np.concatenate([np.arange(count), np.zeros(batch_size(count) - count, int)])
     arrays = (jnp.asarray(a[rows]) for a in (groups.levels, groups.n_yes, groups.n_total))
