@@ -577,6 +577,12 @@ def test_step_rejects_a_frame_of_another_shape():
     state = op.init(BARE, jnp.ones((4, 4, 3)))
     with pytest.raises(ValueError, match="frame"):
         op.step(BARE, state, jnp.ones((4, 5, 3)), 0.03)
+    # Not a state at all: an AttributeError of tuple's, or JAX's own.
+    for wrong in (None, tuple(state)):
+        with pytest.raises(ValueError, match=r"^state: expected a jacobs2015.State \(from"):
+            op.step(BARE, wrong, jnp.ones((4, 4, 3)), 0.03)
+    with pytest.raises(ValueError, match=r"^state: expected a jacobs2015.State \(from"):
+        op.run(BARE, jnp.ones((2, 4, 4, 3)), 0.03, state=tuple(state), key=jax.random.key(0))
 
 
 # -- scenes and gaze files ----------------------------------------------------

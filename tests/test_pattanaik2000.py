@@ -365,8 +365,10 @@ def test_a_state_of_the_wrong_kind_or_shape_is_named():
     state = op.init(local, frames[0])
     with pytest.raises(ValueError, match=r"^state: .* \(4, 5\) .* got A_rod of shape \(5, 4\)"):
         op.run(local, frames, 0.1, state=state._replace(A_rod=jnp.ones((5, 4))))
-    with pytest.raises(ValueError, match=r"^state: expected a pattanaik2000.State, got tuple"):
+    with pytest.raises(ValueError, match=r"^state: expected a pattanaik2000.State .* got tuple"):
         op.run(P, frames, 0.1, state=(1.0, 1.0, 0.5, 0.5))
+    with pytest.raises(ValueError, match=r"^state: expected a pattanaik2000.State .* got NoneType"):
+        op.step(P, None, frames[0], 0.1)  # JAX's "vmap must have at least one non-None"
     with pytest.raises(ValueError, match=r"^state: expected fields of shape \(\), got A_rod"):
         op.run(P, frames, 0.1, state=op.init(P, frames[0])._replace(A_rod=jnp.ones(3)))
 

@@ -130,6 +130,17 @@ def check_one_parameter_set(params, shapes=None):
             )
 
 
+def check_state(state, kind, operator):
+    """Refuse a ``state`` that is not an operator's ``kind`` of state (its
+    ``State``, from its ``init``): ``None`` or a tuple gave JAX's errors
+    from inside the operator ("vmap must have at least one non-None value
+    in in_axes")."""
+    if not isinstance(state, kind):
+        raise ValueError(
+            f"state: expected a {operator}.State (from {operator}.init), got {type(state).__name__}"
+        )
+
+
 def as_dtype(tree, dtype):
     """Cast the floating-point arrays of a pytree (params, state) to ``dtype``,
     so that an operator computes in its input's precision."""

@@ -106,6 +106,7 @@ from jaxadapt.operators.checks import (
     check_frames,
     check_frames_and_dt,
     check_one_parameter_set,
+    check_state,
 )
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_average, frame_centre
 from jaxadapt.physiology import kinetics
@@ -974,6 +975,7 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     """
     frame = jnp.asarray(frame)
     gaze = _default_gaze(gaze, frame, rank=3)
+    check_state(state, State, "jacobs2015")
     if key is not None:
         state = state._replace(key=key)
     new_state, out, _ = _step(params, state, frame, _as_frame_dtype(dt, frame), gaze)
@@ -1034,8 +1036,9 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     gaze = _default_gaze(gaze, frames, rank=4)
     if state is None:
         key = _check_key(params, key)
-    elif key is not None:
-        state = state._replace(key=key)
+    else:
+        check_state(state, State, "jacobs2015")
+        state = state if key is None else state._replace(key=key)
     return _run(params, frames, _as_frame_dtype(dt, frames), gaze, key, state)
 
 

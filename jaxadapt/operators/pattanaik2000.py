@@ -54,6 +54,7 @@ from jaxadapt.operators.checks import (
     check_frames_and_dt,
     check_one_parameter_set,
     check_rgb,
+    check_state,
 )
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
@@ -694,6 +695,7 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
         The state after ``dt`` and the display frame ``(H, W, 3)`` in [0, 1].
     """
     gaze = None if gaze is None else jnp.asarray(gaze)
+    check_state(state, State, "pattanaik2000")
     return _step(params, state, jnp.asarray(frame), jnp.asarray(dt), gaze)
 
 
@@ -759,8 +761,7 @@ def _checked_state(state, shape, guard):
     fields are scalars or of ``shape`` (``ValueError`` naming the field; its
     values are not checked: a second conditional would cost every step of
     a fit through ``run``)."""
-    if not isinstance(state, State):
-        raise ValueError(f"state: expected a pattanaik2000.State, got {type(state).__name__}")
+    check_state(state, State, "pattanaik2000")
     shapes = "()" if shape == () else f"() or {shape} (the goals' shape)"
     for name, field in zip(State._fields, state, strict=True):
         if jnp.shape(field) not in ((), shape):
