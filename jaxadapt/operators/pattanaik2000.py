@@ -624,6 +624,7 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         dtype (the dtype :func:`run` returns its final state in, so that a
         sequence run in chunks compiles ``run`` once).
     """
+    check_one_parameter_set(params)
     if adaptation is not None:
         floating = first_frame is not None and jnp.issubdtype(first_frame.dtype, jnp.floating)
         dtype = first_frame.dtype if floating else jnp.result_type(float)
@@ -633,7 +634,6 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
             A = jnp.broadcast_to(A, first_frame.shape[:2])  # as run() carries it
         return static_state(as_dtype(params, dtype), A, A)
     guard = check_frames(first_frame, 3, "first_frame")
-    check_one_parameter_set(params)
     params = as_dtype(params, first_frame.dtype)
     G_rod, G_cone = frame_goals(params, first_frame, _fixation(first_frame, gaze))
     return static_state(params, G_rod + guard, G_cone + guard)
