@@ -145,8 +145,11 @@ class _Parser(argparse.ArgumentParser):
         --help``), not the program's, which lists only the commands."""
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:
-            words = (self.prog, getattr(parsed, "command", None), getattr(parsed, "action", None))
-            command = " ".join(word for word in words if word)
+            argv = list(sys.argv[1:] if args is None else args)
+            before = argv[: argv.index(extras[0])] if extras[0] in argv else argv
+            # the command words the first of them follows (none: the program's)
+            words = [getattr(parsed, dest, None) for dest in ("command", "action")]
+            command = " ".join([self.prog, *(w for w in words if w and w in before)])
             self.error(f"unrecognized arguments: {' '.join(extras)}", command)
         return parsed
 
@@ -183,6 +186,15 @@ def _default_sizes(scenes):
     return ", ".join(sizes)
 
 
+def _version():
+    """The installed package's version; said as such when run from a source
+    tree that is not installed (every command failed there)."""
+    try:
+        return importlib.metadata.version("jaxadapt")
+    except importlib.metadata.PackageNotFoundError:
+        return "(not installed)"
+
+
 def build_parser():
     from jaxadapt.operators.goal import BACKGROUNDS, GOALS
     from jaxadapt.scenes import SCENES
@@ -192,9 +204,7 @@ def build_parser():
         description="Simulate time-dependent visual adaptation to HDR scenes "
         "and render what a viewer would see on an ordinary display.",
     )
-    parser.add_argument(
-        "--version", action="version", version=f"%(prog)s {importlib.metadata.version('jaxadapt')}"
-    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     render = sub.add_parser(
         "render",
@@ -470,9 +480,9 @@ def _staged(out, console, replaces=None, keep=()):
     a warning on ``console``: they may also be those of runs still going.
     A full device is said as such, naming ``out`` (:func:`_out_of_space`).
     Signals are deferred while the staging folder is made, while the files
-    are moved and while the folders are removed (:func:`_signals_deferred`):
-    one sent as the folder was made left it, and ``out``; :data:`_WRITTEN` is set once
-    the files are all in place.
+    are moved and while the folders are removed (:func:`_signals_deferred`),
+    so that a signal at any point leaves nothing behind; :data:`_WRITTEN`
+    is set once the files are all in place.
     """
     out = out.resolve()
     given = [Path(p) for p in keep]
@@ -515,7 +525,7 @@ def _staged(out, console, replaces=None, keep=()):
             _move_into_place(staging, out, replaces, keep)
             _WRITTEN.set()
     except BaseException as e:
-        full = _out_of_space(e, out)
+        full = not isinstance(e, UsageError) and _out_of_space(e, out)  # said already
         with _signals_deferred():
             if not _WRITTEN.is_set():
                 unmake()

@@ -585,8 +585,8 @@ def _not_fittable(params, name):
     value = getattr(params, name, None)
     if field is None:
         return ""
-    if not eqx.is_array_like(value):  # a choice: 'goal' "is not a parameter" misled
-        return f"is a choice ({value!r}), not a number"
+    if not eqx.is_array_like(value):  # 'goal' "is not a parameter" misled
+        return f"holds {value!r}, not a number"
     if field.metadata.get("static", False):
         return "is a static field"
     if isinstance(value, jax.Array | np.ndarray | np.generic):
@@ -603,11 +603,17 @@ def _spec(params, names, bounds):
     unknown = [n for n in names if n not in valid]
     for name in unknown:
         why = _not_fittable(params, name)
+        number = eqx.is_array_like(getattr(params, name, None))
         if why:
             raise ValueError(
-                f"names: {name!r} of {type(params).__name__} {why}; a fitted field must "
-                "hold a JAX floating-point array (e.g. eqx.field(converter=jnp.asarray) and "
-                f"1.0, not 1); valid names: {', '.join(valid)}"
+                f"names: {name!r} of {type(params).__name__} {why}; "
+                + (
+                    "a fitted field must hold a JAX floating-point array (e.g. "
+                    "eqx.field(converter=jnp.asarray) and 1.0, not 1); "
+                    if number
+                    else ""
+                )
+                + f"valid names: {', '.join(valid)}"
             )
     if unknown:
         raise ValueError(
@@ -1258,7 +1264,11 @@ def fit(
         A name that is not a numeric field (the message lists the valid
         ones), bounds that do not contain the start, data whose trailing
         shape is not the model's output shape, weights that do not
-        broadcast or are negative or not finite, an unknown ``jac``.
+        broadcast or are negative or not finite, an unknown ``jac``, data
+        beyond the range of the model's dtype.
+    NotImplementedError
+        ``jac="fwd"`` for a model without forward-mode derivatives (one
+        through diffrax): fit it with ``jac="bwd"``.
 
     Examples
     --------
@@ -1293,7 +1303,8 @@ def fit(
     # float32 operator's thresholds against NumPy's measurements) in float32,
     # which is all the model resolves (in float64 its float32 prediction had
     # float64 derivatives, which JAX refused).
-    data = jnp.asarray(data).astype(jnp.result_type(out.dtype, float))
+    given = jnp.asarray(data)
+    data = given.astype(jnp.result_type(out.dtype, float))
     event = out.shape
     if data.ndim < len(event) or data.shape[data.ndim - len(event) :] != event:
         raise ValueError(
@@ -1312,7 +1323,14 @@ def fit(
         w = np.asarray(weights)
         if not np.all(np.isfinite(w) & (w >= 0)):
             raise ValueError(WEIGHTS_MESSAGE)
-        missing = int(np.sum(~np.isfinite(np.asarray(data))))
+        finite = np.isfinite(np.asarray(data))
+        beyond = int(np.sum(np.isfinite(np.asarray(given)) & ~finite))
+        if beyond:  # else said as measurements "not finite" that were
+            raise ValueError(
+                f"data: {beyond} measurements lie beyond the range of {data.dtype}, the "
+                "model's precision"
+            )
+        missing = int(np.sum(~finite))
         if missing:
             warnings.warn(
                 f"data: {missing} of {data.size} measurements are not finite and were left "

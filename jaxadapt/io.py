@@ -468,13 +468,16 @@ FLOAT_FORMATS = (".exr", ".hdr", ".pfm")
 
 def _check_pixels(path, pixels):
     """Refuse pixels :func:`write_image` cannot write to ``path`` as they
-    are: not ``(H, W, C)`` with 1 to 4 channels, floats for an 8-bit format
-    (written unencoded, a linear 0.5 as 128: too dark on any display) or
-    integers for a floating-point one."""
+    are: not ``(H, W, C)`` with 1 to 4 channels, neither uint8 nor floating
+    point, floats for an 8-bit format (written unencoded, a linear 0.5 as
+    128: too dark on any display) or integers for a floating-point one."""
     if pixels.ndim != 3 or not 1 <= pixels.shape[2] <= 4:
         raise ValueError(
             f"pixels: expected shape (H, W, C) with 1 to 4 channels, got shape {pixels.shape}"
         )
+    if pixels.dtype != np.uint8 and not np.issubdtype(pixels.dtype, np.floating):
+        # written as floats, uint16 1000 read back as 1000/65535
+        raise ValueError(f"pixels: expected uint8 or floating-point values, got {pixels.dtype}")
     suffix = Path(path).suffix.lower()
     if suffix in EIGHT_BIT_FORMATS and pixels.dtype != np.uint8:
         raise ValueError(

@@ -410,6 +410,23 @@ def test_a_full_device_is_said_when_the_writer_gives_no_errno(tmp_path, capsys, 
     _assert_one_line_error(status, err, "--out: no space left on the device of", str(out))
 
 
+def test_an_out_that_cannot_be_written_is_said_so_on_a_device_without_space(
+    tmp_path, capsys, monkeypatch
+):
+    # A read-only mount reports no free space: "cannot write to --out
+    # (Read-only file system)" was said as a full device.
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(cli.tempfile, "mkdtemp", read_only)
+    usage = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(path)._replace(free=0))
+    out = tmp_path / "out"
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    _assert_one_line_error(status, err, f"--out: cannot write to {out} (Read-only file system)")
+    assert not out.exists()
+
+
 def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_path, capsys):
     # 1e9 on a 1x1 frame took the machine's 24 GB; 1e5 on 64x48, 677 MB.
     out = tmp_path / "o"
@@ -1087,6 +1104,9 @@ def test_argument_errors_are_one_line(capsys, argv, option):
             ["psychometric", "simulate", "--protocol", "mesopic", "--observers", "2", "extra"],
             "jaxadapt psychometric simulate",
         ),
+        # Before the command: the help of what it was given to.
+        (["--sise", "render"], "jaxadapt"),
+        (["psychometric", "--sise", "fit", "t.csv"], "jaxadapt psychometric"),
     ],
 )
 def test_an_unknown_argument_points_to_its_commands_help(capsys, argv, command):
@@ -1094,7 +1114,8 @@ def test_an_unknown_argument_points_to_its_commands_help(capsys, argv, command):
     with pytest.raises(SystemExit) as exit:
         main(argv)
     err = capsys.readouterr().err
-    _assert_one_line_error(exit.value.code, err, "unrecognized arguments", argv[-1])
+    stray = next(a for a in argv if a in ("--sise", "extra"))
+    _assert_one_line_error(exit.value.code, err, "unrecognized arguments", stray)
     assert err.strip().endswith(f"(see {command} --help)"), err
 
 

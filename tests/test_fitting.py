@@ -323,7 +323,7 @@ def test_bad_input_is_named():
     # A choice, not "not a parameter" (it is one).
     with pytest.raises(
         ValueError,
-        match=r"'goal' of Params is a choice \('log_average'\), not a number.*names: n, t0_rod",
+        match=r"'goal' of Params holds 'log_average', not a number; valid names: n, t0_rod",
     ):
         fitting.fit(log_threshold, START, "goal", data, args=ARGS)
     with pytest.raises(ValueError, match="names: expected each parameter once"):
@@ -635,6 +635,11 @@ def test_float64_data_of_a_float32_model_are_fitted_in_float32(decays):
         for name in ABC:  # the fit of the data rounded to float32
             assert float(f.estimate[name]) == float(g.estimate[name])
         np.testing.assert_allclose(float(f.estimate["b"]), float(f64.estimate["b"][0]), rtol=1e-4)
+    # Finite measurements the cast makes infinite are not "not finite" data.
+    with pytest.raises(ValueError, match="^data: 1 measurements lie beyond the range of float32"):
+        fitting.fit(
+            decay32, Decay(), ABC, np.append(data[0][:-1], 1e39), args=T, bounds=UNBOUNDED_C
+        )
 
 
 @pytest.mark.parametrize("empty", ["nan", "weight 0"])

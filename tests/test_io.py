@@ -63,8 +63,10 @@ def test_hdr_formats_round_trip(tmp_path, suffix):
     [
         # A linear float frame was written to PNG unencoded (0.5 as 128, too dark).
         ("f.png", np.full((4, 4, 3), 0.5, np.float32), r"f.png: expected uint8 .* got float32"),
-        ("f.png", np.zeros((4, 4, 3), np.uint16), "f.png: expected uint8"),
+        ("f.png", np.zeros((4, 4, 3), np.uint16), "pixels: expected uint8 or floating"),
         ("f.exr", np.zeros((4, 4, 3), np.uint8), "f.exr: expected floating-point pixels"),
+        # A TIFF takes both: uint16 was written as floats, 1000 as 1000/65535.
+        ("f.tif", np.full((4, 4, 3), 1000, np.uint16), "pixels: expected uint8 or floating"),
         # Two axes: an IndexError of the header's third.
         ("f.exr", np.ones((4, 5), np.float32), r"pixels: expected shape \(H, W, C\)"),
     ],

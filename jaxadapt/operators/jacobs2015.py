@@ -272,13 +272,12 @@ class Params(eqx.Module):
                 )
         check_value("rho_step", self.rho_step, lambda v: v >= 0, ">= 0 log10 units")
         # m1 = m2 divided by 0 in Eq 13 (rho infinite), m1 < m2 turned rho around.
-        if not any(isinstance(m, jax.core.Tracer) for m in (self.m1, self.m2)):
-            m1, m2 = np.asarray(self.m1), np.asarray(self.m2)
-            if not np.all(m1 > m2):
-                raise ValueError(
-                    "m1, m2: expected the upper end of the mesopic range above the lower "
-                    f"(log10 cd/m2), got m1 = {m1.tolist()} and m2 = {m2.tolist()}"
-                )
+        check_value(
+            "m1 - m2",
+            self.m1 - self.m2,
+            lambda v: v > 0,
+            "the mesopic range's upper end m1 above its lower end m2 (log10 cd/m2)",
+        )
         # M >= 1 makes sigma of Eq 2 NaN (and M = 0 infinite): a black frame.
         check_value("plateau_max", self.plateau_max, lambda v: (v > 0) & (v < 1), "in (0, 1)")
         check_fields(self, positive=POSITIVE_FIELDS, non_negative=NON_NEGATIVE_FIELDS)
