@@ -800,7 +800,8 @@ def render(args, console):
     formats = args.formats or ["png", "mp4"]
     source = _source(args)
     _warn_numbers_out_of_order(args.files, console)
-    shape = source.frames(np.arange(1)).shape[1:3]
+    if args.background_scale is not None or args.gaze is not None:
+        shape = source.frames(np.arange(1)).shape[1:3]  # read only when needed
     if args.background_scale is not None:
         _check_scale_fits(args.background_scale, shape)
     if args.gaze is not None:

@@ -588,10 +588,15 @@ def _not_fittable(params, name):
     if not eqx.is_array_like(value):  # 'goal' "is not a parameter" misled
         return f"holds {value!r}, not a number"
     if field.metadata.get("static", False):
-        return "is a static field"
-    if isinstance(value, jax.Array | np.ndarray | np.generic):
-        return f"holds {value.dtype} values"
-    return f"holds a Python {type(value).__name__}"
+        why = "is a static field"
+    elif isinstance(value, jax.Array | np.ndarray | np.generic):
+        why = f"holds {value.dtype} values"
+    else:
+        why = f"holds a Python {type(value).__name__}"
+    return (
+        f"{why}; a fitted field must hold a JAX floating-point array "
+        "(e.g. eqx.field(converter=jnp.asarray) and 1.0, not 1)"
+    )
 
 
 def _spec(params, names, bounds):
@@ -603,17 +608,9 @@ def _spec(params, names, bounds):
     unknown = [n for n in names if n not in valid]
     for name in unknown:
         why = _not_fittable(params, name)
-        number = eqx.is_array_like(getattr(params, name, None))
         if why:
             raise ValueError(
-                f"names: {name!r} of {type(params).__name__} {why}; "
-                + (
-                    "a fitted field must hold a JAX floating-point array (e.g. "
-                    "eqx.field(converter=jnp.asarray) and 1.0, not 1); "
-                    if number
-                    else ""
-                )
-                + f"valid names: {', '.join(valid)}"
+                f"names: {name!r} of {type(params).__name__} {why}; valid names: {', '.join(valid)}"
             )
     if unknown:
         raise ValueError(
