@@ -26,6 +26,10 @@ factors, 20 %) and Gaussian noise of 0.05 log units.
   it runs eagerly): what a first SciPy wrapper of the model costs.
 * jaxadapt in float32 (float64 switched off), the library's default
   precision, compared with the float64 estimates in standard errors.
+* the ceiling: the speed-up a solver would reach that took jaxadapt's
+  steps and cost nothing but the model and its Jacobian at each step's
+  trial point (the least a lane of one took, over ``jax.jacfwd`` and the
+  fit's linearise-and-push form, at 64 and 256 lanes).
 
 Compilation is excluded (each compiled function is called once first; that
 first call's time, compilation included, is recorded too) and JAX results
@@ -127,17 +131,14 @@ def scipy_loop(data, args, jit=True, groups=1, between=None):
     the seconds of each group and the number of model evaluations.
     """
 
-    def model(v):
-        return log_threshold(with_log(v), args)
-
-    model = jax.jit(model) if jit else model
+    fn = jax.jit(model(args)) if jit else model(args)
     x0 = np.log([float(getattr(op.Params(), n)) for n in NAMES])
-    model(jnp.asarray(x0)).block_until_ready()  # compile outside the timing
+    fn(jnp.asarray(x0)).block_until_ready()  # compile outside the timing
     estimates, ok, costs, evaluations = [], [], [], [0]
 
     def residuals(v, row):
         evaluations[0] += 1
-        return np.asarray(model(jnp.asarray(v))) - row
+        return np.asarray(fn(jnp.asarray(v))) - row
 
     seconds = []
     for rows in np.array_split(data, groups):
@@ -153,15 +154,46 @@ def scipy_loop(data, args, jit=True, groups=1, between=None):
     return np.array(estimates), np.array(ok), np.array(costs), np.array(seconds), evaluations[0]
 
 
-def model_seconds_per_lane(model_args):
-    """Seconds a lane of one vmapped model evaluation over :data:`fitting.LANES`
-    lanes (the width of a solver step), at the paper's constants, in the
-    precision in force."""
+def model(model_args):
+    """The log thresholds as a function of the four constants' logs."""
+    return lambda v: log_threshold(with_log(v), model_args)
+
+
+def model_and_jacobian(model_args):
+    """Forward-mode Jacobians of the model, its value included, in the two
+    forms a fit can compute them: ``jax.jacfwd`` (the four tangents pushed
+    through every operation at once) and the model linearised once with
+    each constant's tangent pushed through the linearisation alone (as
+    :func:`jaxadapt.fitting.fit` computes its Jacobian)."""
+    fn = model(model_args)
+
+    def linearised(v):
+        f, tangent = jax.linearize(fn, v)
+        return f, jnp.stack([tangent(e) for e in jnp.eye(v.size, dtype=v.dtype)], -1)
+
+    return {"jacfwd": jax.jacfwd(fn), "linearised": linearised}
+
+
+def seconds_per_lane(fn, lanes=fitting.LANES):
+    """Seconds a lane of ``fn`` (of the four constants' logs) vmapped over
+    ``lanes`` lanes, at the paper's constants, in the precision in force."""
     x0 = np.log([float(getattr(op.Params(), n)) for n in NAMES])
-    X = jnp.tile(jnp.asarray(x0), (fitting.LANES, 1))
-    model = jax.jit(jax.vmap(lambda v: log_threshold(with_log(v), model_args)))
-    seconds = median_seconds(lambda: jax.block_until_ready(model(X)), repeats=21)
-    return seconds / fitting.LANES
+    X = jnp.tile(jnp.asarray(x0), (lanes, 1))
+    batched = jax.jit(jax.vmap(fn))
+    return median_seconds(lambda: jax.block_until_ready(batched(X)), repeats=21) / lanes
+
+
+def jacobian_seconds_per_lane(model_args):
+    """The least seconds a lane of one model evaluation with its Jacobian
+    took: each form of :func:`model_and_jacobian` at 64 and 256 lanes
+    (wider vmaps pay XLA's fixed cost per operation less often)."""
+    forms = model_and_jacobian(model_args)
+    times = {
+        f"{name}_{lanes}_lanes": seconds_per_lane(fn, lanes)
+        for name, fn in forms.items()
+        for lanes in (fitting.LANES, 4 * fitting.LANES)
+    }
+    return min(times.values()), times
 
 
 def timed(fn, times):
@@ -213,7 +245,8 @@ def main():
             )
 
         fits32 = run32()
-        model32_per_lane = model_seconds_per_lane(args32)
+        model32_per_lane = seconds_per_lane(model(args32))
+        jacobian32_per_lane, jacobian32_forms = jacobian_seconds_per_lane(args32)
         ours32 = np.stack([np.asarray(fits32.estimate[n], float) for n in NAMES], -1)
         se64 = np.stack([np.asarray(fits.se[n]) for n in NAMES], -1)
         f32_vs_f64 = np.abs(ours32 - ours) / se64
@@ -237,7 +270,15 @@ def main():
     # Each pair's SciPy time for all observers over the jaxadapt call after it.
     pair_speedups = groups_s / group_sizes * args.observers / np.array(jax_times)
     pair_speedups32 = groups_s / group_sizes * args.observers / np.array(f32_times)
-    model_per_lane = model_seconds_per_lane(model_args)
+    model_per_lane = seconds_per_lane(model(model_args))
+    jacobian_per_lane, jacobian_forms = jacobian_seconds_per_lane(model_args)
+    # A Levenberg-Marquardt step needs the model and its Jacobian at its
+    # trial point: a solver that cost nothing else, taking as many steps,
+    # would reach this speed-up and no more.
+    mean_steps = float(np.mean(np.asarray(fits.steps)))
+    mean_steps32 = float(np.mean(np.asarray(fits32.steps)))
+    ceiling = peer_per_fit / (mean_steps * jacobian_per_lane)
+    ceiling32 = peer_per_fit / (mean_steps32 * jacobian32_per_lane)
     eager = min(args.eager_peer, args.observers)
     *_, eager_groups_s, eager_evaluations = scipy_loop(
         np.asarray(data[:eager]), model_args, jit=False
@@ -265,11 +306,13 @@ def main():
             "fits_per_second": args.observers / jax_s,
             "converged_fraction": float(converged.mean()),
             "median_steps": float(np.median(np.asarray(fits.steps))),
-            "mean_steps": float(np.mean(np.asarray(fits.steps))),
+            "mean_steps": mean_steps,
             "max_steps": int(np.max(np.asarray(fits.steps))),
             "lanes": fitting.LANES,
             "seconds_per_step_and_fit": jax_s / float(np.sum(np.asarray(fits.steps))),
             "model_seconds_per_lane": model_per_lane,
+            "jacobian_seconds_per_lane": jacobian_per_lane,
+            "jacobian_seconds_per_lane_each_form": jacobian_forms,
             "method": "fitting.fit: optimistix LevenbergMarquardt with Nielsen's damping "
             "(and MINPACK's ftol and xtol tests), "
             "forward-mode Jacobians (one linearisation, one tangent per constant), log "
@@ -281,8 +324,11 @@ def main():
             "fits_per_second": args.observers / f32_s,
             "converged_fraction": float(np.mean(np.asarray(fits32.converged))),
             "median_steps": float(np.median(np.asarray(fits32.steps))),
+            "mean_steps": mean_steps32,
             "seconds_per_step_and_fit": f32_s / float(np.sum(np.asarray(fits32.steps))),
             "model_seconds_per_lane": model32_per_lane,
+            "jacobian_seconds_per_lane": jacobian32_per_lane,
+            "jacobian_seconds_per_lane_each_form": jacobian32_forms,
             "max_difference_from_float64_in_standard_errors": float(np.max(f32_vs_f64)),
             "method": "the same call on float32 data and model (float64 off)",
         },
@@ -313,6 +359,14 @@ def main():
         },
         "speedup": peer_per_fit * args.observers / jax_s,
         "speedup_float32": peer_per_fit * args.observers / f32_s,
+        "speedup_ceiling": {
+            "float64": ceiling,
+            "float32": ceiling32,
+            "method": "SciPy's seconds a fit over (jaxadapt's mean steps a fit x the least "
+            "seconds a lane of one model evaluation with its forward-mode Jacobian): the "
+            "speed-up of a solver that took the same steps and cost nothing but the "
+            "Jacobians they need",
+        },
         "speedup_of_the_pairs": {
             "float64": {
                 "median": float(np.median(pair_speedups)),
@@ -345,6 +399,11 @@ def main():
         },
     }
     print(write_result("fitting", record, args.label))
+    print(
+        f"ceiling (a solver costing only its Jacobians): {ceiling:.1f}x float64, "
+        f"{ceiling32:.1f}x float32; a Jacobian with the model, a lane: "
+        f"{jacobian_per_lane * 1e6:.1f} us float64, {jacobian32_per_lane * 1e6:.1f} us float32"
+    )
     print(
         f"float32: {args.observers} fits in {f32_s:.2f} s ({record['speedup_float32']:.1f}x); "
         f"scipy on the eager model: {eager_per_fit * 1e3:.0f} ms a fit "
