@@ -1,6 +1,8 @@
 """Pupil diameter as a function of the adapting luminance, and pupil area.
 
-Pure functions on arrays of any shape that follow the dtype of their inputs.
+Pure functions on arrays of any shape that follow the dtype of their inputs
+(lists and tuples are taken as arrays); a negative luminance or diameter
+gives NaN.
 Luminance in cd/m2, diameter in mm, area in mm2.
 
 References
@@ -13,17 +15,20 @@ chapter 6, §6.2.1-6.2.2 (``shared/seeds/001_*.txt``), after Moon and Spencer
 
 import jax.numpy as jnp
 
+from jaxadapt.physiology._inputs import array_like, nonnegative
+
 #: Luminance of the de Groot and Gebhard formula's largest pupil,
 #: ``10^-8.6`` cd/m2 (where its cubic in log luminance has zero slope).
 DE_GROOT_GEBHARD_DARK = 10.0**-8.6
 
 
+@array_like
 def diameter_moon_spencer(L):
     """Pupil diameter after Moon and Spencer: ``d = 4.9 - 3 tanh(0.4 (log10 L + 1))``.
 
     Parameters
     ----------
-    L : array
+    L : array_like
         Adapting luminance, cd/m2, ``>= 0``.
 
     Returns
@@ -32,7 +37,7 @@ def diameter_moon_spencer(L):
         Diameter, mm, between 1.9 (bright) and 7.9 (dark); ``L = 0`` gives
         the dark limit 7.9 mm, with a zero derivative (luminance is floored
         at the dtype's smallest normal number, where the curve is flat to
-        its precision).
+        its precision); NaN where ``L < 0`` (:func:`~jaxadapt.physiology._inputs.nonnegative`).
 
     Notes
     -----
@@ -48,23 +53,24 @@ def diameter_moon_spencer(L):
     4.9
     """
     L = jnp.asarray(L, jnp.result_type(L, float))
-    L = jnp.maximum(L, jnp.finfo(L.dtype).tiny)
-    return 4.9 - 3.0 * jnp.tanh(0.4 * (jnp.log10(L) + 1.0))
+    floored = jnp.maximum(L, jnp.finfo(L.dtype).tiny)
+    return nonnegative(L, 4.9 - 3.0 * jnp.tanh(0.4 * (jnp.log10(floored) + 1.0)))
 
 
+@array_like
 def diameter_de_groot_gebhard(L):
     """Pupil diameter after de Groot and Gebhard:
     ``log10 d = 0.8558 - 4.01e-4 (log10 L + 8.6)^3``.
 
     Parameters
     ----------
-    L : array
+    L : array_like
         Adapting luminance, cd/m2, ``>= 0``.
 
     Returns
     -------
     array
-        Diameter, mm; at most ``10^0.8558 = 7.18`` mm.
+        Diameter, mm; at most ``10^0.8558 = 7.18`` mm; NaN where ``L < 0``.
 
     Notes
     -----
@@ -84,28 +90,29 @@ def diameter_de_groot_gebhard(L):
     7.175
     """
     x = jnp.log10(jnp.maximum(L, DE_GROOT_GEBHARD_DARK)) + 8.6
-    return 10.0 ** (0.8558 - 4.01e-4 * x**3)
+    return nonnegative(L, 10.0 ** (0.8558 - 4.01e-4 * x**3))
 
 
+@array_like
 def area(d):
     """Area of a circular pupil of diameter ``d``: ``pi d^2 / 4``.
 
     Parameters
     ----------
-    d : array
+    d : array_like
         Diameter, mm.
 
     Returns
     -------
     array
-        Area, mm2.
+        Area, mm2; NaN where ``d < 0``.
 
     Examples
     --------
     >>> round(float(area(2.0)), 6)
     3.141593
     """
-    return 0.25 * jnp.pi * d**2
+    return nonnegative(d, 0.25 * jnp.pi * d**2)
 
 
 #: Pupil-diameter formulas by name: luminance (cd/m2) to diameter (mm).

@@ -1,7 +1,8 @@
 """Static photoreceptor response: Naka-Rushton law, Hunt's sigma and bleaching.
 
 Pure functions on arrays of any shape, float32 or float64 (they follow the
-dtype of their inputs). Luminance in cd/m2 (scotopic cd/m2 for rods),
+dtype of their inputs; lists and tuples are taken as arrays; a negative
+luminance gives NaN). Luminance in cd/m2 (scotopic cd/m2 for rods),
 responses dimensionless.
 
 References
@@ -12,10 +13,13 @@ for Fast Realistic Image Display*, Eqs 1-6 (``shared/seeds/000_*.txt``).
 
 import jax.numpy as jnp
 
+from jaxadapt.physiology._inputs import array_like, nonnegative
+
 #: Response exponent of Hunt's model (Pattanaik 2000, §4.1.1).
 N_HUNT = 0.73
 
 
+@array_like
 def power(x, p):
     """``x^p`` for ``x >= 0``, as ``exp(p ln x)``, with ``0^p = 0`` (``p > 0``).
 
@@ -36,16 +40,17 @@ def power(x, p):
     return jnp.where(positive, jnp.exp(p * jnp.log(safe)), jnp.where(x == 0, 0.0, jnp.nan))
 
 
+@array_like
 def naka_rushton(L, sigma, B=1.0, n=N_HUNT):
     """Naka-Rushton response ``R = B L^n / (L^n + sigma^n)`` (Eq 2).
 
     Parameters
     ----------
-    L : array
+    L : array_like
         Luminance, cd/m2, ``>= 0``.
-    sigma : array
+    sigma : array_like
         Semi-saturation luminance, cd/m2, ``> 0``.
-    B : array
+    B : array_like
         Maximum response (pigment bleaching factor), in [0, 1].
     n : float
         Exponent.
@@ -65,6 +70,7 @@ def naka_rushton(L, sigma, B=1.0, n=N_HUNT):
     return B * x / (1.0 + x)
 
 
+@array_like
 def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
     """Luminance that evokes response ``R``: the inverse of Eq 2.
 
@@ -72,11 +78,11 @@ def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
 
     Parameters
     ----------
-    R : array
+    R : array_like
         Response, in ``[0, B)``.
-    sigma : array
+    sigma : array_like
         Semi-saturation luminance, cd/m2.
-    B : array
+    B : array_like
         Maximum response.
     n : float
         Exponent.
@@ -103,6 +109,7 @@ def _in_range(R, B, value):
     return jnp.where((R >= 0) & (R < B), value, jnp.where(R == B, jnp.inf, jnp.nan))
 
 
+@array_like
 def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     """Log of the luminance at which two Naka-Rushton responses with one exponent sum to ``R``.
 
@@ -130,11 +137,11 @@ def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
 
     Parameters
     ----------
-    R : array
+    R : array_like
         Summed response, in ``[0, B_1 + B_2)``.
-    sigma_1, sigma_2 : array
+    sigma_1, sigma_2 : array_like
         Semi-saturation luminances, cd/m2.
-    B_1, B_2 : array
+    B_1, B_2 : array_like
         Maximum responses.
     n : float
         Shared exponent.
@@ -164,6 +171,7 @@ def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     return _in_range(R, B_1 + B_2, jnp.log(sigma_2) + ln_u / n)
 
 
+@array_like
 def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     """Luminance (cd/m2) at which two Naka-Rushton responses sum to ``R``:
     ``exp`` of :func:`log_naka_rushton_sum_inverse` (0 for ``R = 0``).
@@ -178,6 +186,7 @@ def naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     return jnp.exp(log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n))
 
 
+@array_like
 def response_slope(L, sigma, B=1.0, n=N_HUNT):
     """Slope of Eq 2 per log10 unit of luminance: ``S = dR / dlog10(L)`` (Eq 3).
 
@@ -192,11 +201,11 @@ def response_slope(L, sigma, B=1.0, n=N_HUNT):
 
     Parameters
     ----------
-    L : array
+    L : array_like
         Luminance, cd/m2.
-    sigma : array
+    sigma : array_like
         Semi-saturation luminance, cd/m2.
-    B : array
+    B : array_like
         Maximum response.
     n : float
         Exponent.
@@ -216,6 +225,7 @@ def response_slope(L, sigma, B=1.0, n=N_HUNT):
     return jnp.log(10.0) * n * B * x / (1.0 + x) ** 2
 
 
+@array_like
 def forward_difference_slope(L_white, L_black, sigma, B=1.0, n=N_HUNT):
     """Forward-difference slope of Eq 2 between two luminances, per log10 unit.
 
@@ -233,6 +243,7 @@ def forward_difference_slope(L_white, L_black, sigma, B=1.0, n=N_HUNT):
     return rise / (jnp.log10(L_white) - jnp.log10(L_black))
 
 
+@array_like
 def hunt_F_L(A):
     """Hunt's luminance-level adaptation factor ``F_L`` for cones.
 
@@ -244,6 +255,7 @@ def hunt_F_L(A):
     return 0.2 * k4 * (5.0 * A) + 0.1 * (1.0 - k4) ** 2 * power(5.0 * A, 1.0 / 3.0)
 
 
+@array_like
 def hunt_F_LS(A):
     """Hunt's scotopic luminance-level adaptation factor ``F_LS`` (rods).
 
@@ -279,6 +291,7 @@ def _semi_saturation(F, A, n, dark_gain):
     return 2.0 ** (1.0 / n) * jnp.where(dark, 1.0 / dark_gain, 5.0 * safe / F(safe))
 
 
+@array_like
 def sigma_cone(A, n=N_HUNT):
     """Cone semi-saturation luminance for adaptation ``A`` (Eq 5).
 
@@ -290,7 +303,7 @@ def sigma_cone(A, n=N_HUNT):
 
     Parameters
     ----------
-    A : array
+    A : array_like
         Cone adaptation luminance, cd/m2, ``>= 0``.
 
     Returns
@@ -302,6 +315,7 @@ def sigma_cone(A, n=N_HUNT):
     return _semi_saturation(hunt_F_L, A, n, dark_gain=0.2)
 
 
+@array_like
 def sigma_rod(A, n=N_HUNT):
     """Rod semi-saturation luminance for adaptation ``A`` (Eq 4).
 
@@ -319,7 +333,7 @@ def sigma_rod(A, n=N_HUNT):
 
     Parameters
     ----------
-    A : array
+    A : array_like
         Rod adaptation luminance, scotopic cd/m2, ``>= 0``.
 
     Returns
@@ -331,22 +345,24 @@ def sigma_rod(A, n=N_HUNT):
     return _semi_saturation(hunt_F_LS, A, n, dark_gain=3800.0)
 
 
+@array_like
 def bleach_cone(A):
     """Hunt's static cone bleaching factor ``B = 2e6 / (2e6 + A)`` (Eq 6).
 
     Parameters
     ----------
-    A : array
+    A : array_like
         Cone adaptation luminance, cd/m2.
 
     Returns
     -------
     array
-        Fraction of unbleached pigment, in (0, 1].
+        Fraction of unbleached pigment, in (0, 1]; NaN where ``A < 0``.
     """
-    return 2e6 / (2e6 + A)
+    return nonnegative(A, 2e6 / (2e6 + A))
 
 
+@array_like
 def bleach_rod(A):
     """Hunt's static rod bleaching factor ``B = 0.04 / (0.04 + A)`` (Eq 6).
 
@@ -354,12 +370,12 @@ def bleach_rod(A):
 
     Parameters
     ----------
-    A : array
+    A : array_like
         Rod adaptation luminance, scotopic cd/m2.
 
     Returns
     -------
     array
-        Fraction of unbleached pigment, in (0, 1].
+        Fraction of unbleached pigment, in (0, 1]; NaN where ``A < 0``.
     """
-    return 0.04 / (0.04 + A)
+    return nonnegative(A, 0.04 / (0.04 + A))

@@ -1,6 +1,8 @@
 """Increment thresholds: TVI curves, trolands, and thresholds implied by a response.
 
-Pure functions on arrays of any shape that follow the dtype of their inputs.
+Pure functions on arrays of any shape that follow the dtype of their inputs
+(lists and tuples are taken as arrays); a negative luminance or illuminance
+gives NaN.
 Retinal illuminance in trolands (td), luminance in cd/m2.
 
 References
@@ -14,53 +16,57 @@ response-threshold relation), §6.3.2 (Ward's use of a TVI model).
 import jax.numpy as jnp
 
 from jaxadapt.physiology import pupil
+from jaxadapt.physiology._inputs import array_like, nonnegative
 from jaxadapt.physiology.response import N_HUNT, naka_rushton, power
 
 
+@array_like
 def tvi_rod(I_b):
     """Rod increment threshold of Rushton and MacLeod: ``dI = 0.1 (I_b + 0.015)`` (Fig 6.7).
 
     Parameters
     ----------
-    I_b : array
+    I_b : array_like
         Background retinal illuminance, td.
 
     Returns
     -------
     array
         Threshold increment, td: 0.0015 td in the dark, a Weber fraction of
-        10 % on bright backgrounds.
+        10 % on bright backgrounds; NaN where ``I_b < 0``.
 
     Examples
     --------
     >>> round(float(tvi_rod(0.0)), 6)
     0.0015
     """
-    return 0.1 * (I_b + 0.015)
+    return nonnegative(I_b, 0.1 * (I_b + 0.015))
 
 
+@array_like
 def tvi_cone(I_b):
     """Cone increment threshold of Rushton and MacLeod: ``dI = 0.02 (I_b + 8)`` (Fig 6.7).
 
     Parameters
     ----------
-    I_b : array
+    I_b : array_like
         Background retinal illuminance, td.
 
     Returns
     -------
     array
         Threshold increment, td: 0.16 td in the dark, a Weber fraction of
-        2 % on bright backgrounds.
+        2 % on bright backgrounds; NaN where ``I_b < 0``.
 
     Examples
     --------
     >>> round(float(tvi_cone(0.0)), 6)
     0.16
     """
-    return 0.02 * (I_b + 8.0)
+    return nonnegative(I_b, 0.02 * (I_b + 8.0))
 
 
+@array_like
 def tvi_rod_cone(I_b):
     """Threshold of the more sensitive of the rod and cone systems (the lower envelope).
 
@@ -70,7 +76,7 @@ def tvi_rod_cone(I_b):
 
     Parameters
     ----------
-    I_b : array
+    I_b : array_like
         Background retinal illuminance, td.
 
     Returns
@@ -81,6 +87,7 @@ def tvi_rod_cone(I_b):
     return jnp.minimum(tvi_rod(I_b), tvi_cone(I_b))
 
 
+@array_like
 def trolands(L, d):
     """Retinal illuminance ``T = L * pi d^2 / 4`` of luminance ``L`` seen through a pupil ``d``.
 
@@ -88,25 +95,26 @@ def trolands(L, d):
 
     Parameters
     ----------
-    L : array
+    L : array_like
         Luminance, cd/m2.
-    d : array
+    d : array_like
         Pupil diameter, mm (for the natural pupil, e.g.
         :func:`jaxadapt.physiology.pupil.diameter_moon_spencer` of ``L``).
 
     Returns
     -------
     array
-        Retinal illuminance, td.
+        Retinal illuminance, td; NaN where ``L < 0`` or ``d < 0``.
 
     Examples
     --------
     >>> round(float(trolands(100.0, 2.0)), 4)
     314.1593
     """
-    return L * pupil.area(d)
+    return nonnegative(L, L * pupil.area(d))
 
 
+@array_like
 def tvi_luminance(L_b, diameter=pupil.diameter_moon_spencer):
     """Rushton and MacLeod's threshold converted to luminance through the natural pupil.
 
@@ -116,7 +124,7 @@ def tvi_luminance(L_b, diameter=pupil.diameter_moon_spencer):
 
     Parameters
     ----------
-    L_b : array
+    L_b : array_like
         Background luminance, cd/m2.
     diameter : callable
         Pupil diameter (mm) as a function of luminance (cd/m2); Moon and
@@ -142,12 +150,13 @@ def tvi_luminance(L_b, diameter=pupil.diameter_moon_spencer):
     return tvi_rod_cone(L_b * A) / A
 
 
+@array_like
 def tvi_blackwell(L_b):
     """Blackwell's threshold as used by Ward (1994): ``dL = 0.0594 (1.219 + L_b^0.4)^2.5``.
 
     Parameters
     ----------
-    L_b : array
+    L_b : array_like
         Background (adaptation) luminance, cd/m2.
 
     Returns
@@ -173,6 +182,7 @@ def tvi_blackwell(L_b):
 TVI_MODELS = {"rushton-macleod": tvi_luminance, "blackwell": tvi_blackwell}
 
 
+@array_like
 def increment_threshold(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     """Threshold increment implied by a Naka-Rushton response and a criterion ``delta`` (§6.2.4).
 
@@ -190,15 +200,15 @@ def increment_threshold(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
 
     Parameters
     ----------
-    I_b : array
+    I_b : array_like
         Background intensity (any unit, that of ``sigma_b``), ``>= 0``.
-    sigma_b : array
+    sigma_b : array_like
         Semi-saturation constant at that background, ``> 0``.
-    delta : array
+    delta : array_like
         Criterion response, in ``(0, R_max - R_b)``.
-    R_max : array
+    R_max : array_like
         Maximum response.
-    n : array
+    n : array_like
         Exponent of Eq 6.2.
 
     Returns
@@ -223,6 +233,7 @@ def _criterion_response(I_b, sigma_b, delta, R_max, n):
     return R, jnp.maximum(R_max - R, 0.0)
 
 
+@array_like
 def increment_sensitivity(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     """``1 / dI`` of :func:`increment_threshold`, in 1/(unit of ``I_b``).
 
@@ -235,6 +246,7 @@ def increment_sensitivity(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     return n * power(headroom, (n + 1.0) / n) / (delta * sigma_b * R_max * power(R, (1.0 - n) / n))
 
 
+@array_like
 def relative_threshold(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n=N_HUNT):
     """Threshold relative to the dark-adapted one, ``dI / dI_dark`` (§6.2.4, first line).
 
@@ -249,17 +261,17 @@ def relative_threshold(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n=N_HUNT):
 
     Parameters
     ----------
-    I_b : array
+    I_b : array_like
         Background intensity, ``>= 0``.
-    sigma_b : array
+    sigma_b : array_like
         Semi-saturation constant at that background.
-    sigma_dark : array
+    sigma_dark : array_like
         Semi-saturation constant of the dark-adapted receptor.
-    delta : array
+    delta : array_like
         Criterion response.
-    R_max : array
+    R_max : array_like
         Maximum response.
-    n : array
+    n : array_like
         Exponent of Eq 6.2.
 
     Returns
@@ -276,6 +288,7 @@ def relative_threshold(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n=N_HUNT):
     return increment_threshold(I_b, sigma_b, delta, R_max, n) / dark
 
 
+@array_like
 def relative_threshold_small_delta(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n=N_HUNT):
     """Closed form of ``dI / dI_dark`` for ``delta << R_b`` (§6.2.4, last line).
 
@@ -285,17 +298,17 @@ def relative_threshold_small_delta(I_b, sigma_b, sigma_dark, delta, R_max=1.0, n
 
     Parameters
     ----------
-    I_b : array
+    I_b : array_like
         Background intensity, ``> 0``.
-    sigma_b : array
+    sigma_b : array_like
         Semi-saturation constant at that background.
-    sigma_dark : array
+    sigma_dark : array_like
         Semi-saturation constant of the dark-adapted receptor.
-    delta : array
+    delta : array_like
         Criterion response, small against ``R_b``.
-    R_max : array
+    R_max : array_like
         Maximum response.
-    n : array
+    n : array_like
         Exponent of Eq 6.2.
 
     Returns
