@@ -37,7 +37,7 @@ def diameter_moon_spencer(L):
         Diameter, mm, between 1.9 (bright) and 7.9 (dark); ``L = 0`` gives
         the dark limit 7.9 mm, with a zero derivative (luminance is floored
         at the dtype's smallest normal number, where the curve is flat to
-        its precision); NaN where ``L < 0`` (:func:`~jaxadapt.physiology._inputs.nonnegative`).
+        its precision); NaN where ``L < 0``.
 
     Notes
     -----
