@@ -23,10 +23,13 @@ Formulation
   the mean by half its size (``WEIGHT_SPREAD`` of ``jacobs_psychophysics``);
   the other fields are each protocol's default population
   (:data:`jaxadapt.psychophysics.observer.POPULATIONS`). The two medians
-  are fitted jointly, two equations in two unknowns, since a stimulus may
-  carry more than one cue: the strong afterimage tints the flash's rim
-  faintly (desaturation cue -0.010), so that ``s`` moves the afterimage
-  PSEs a little as well.
+  are fitted jointly, two equations in two unknowns, so that a stimulus
+  carrying more than one cue moves both. In these renders none does: the
+  afterimage stimuli's desaturation cue is at its floor in both conditions
+  (the flash's rim is neutral to well below
+  :data:`~jaxadapt.psychophysics.observer.CUE_FLOOR`) and the mesopic
+  stimuli have no afterimage, so the Jacobian of the two medians is
+  diagonal and each median depends on one weight alone.
 * **Statistic.** The median PSE shift of an experiment: median of the 11
   manipulated PSEs minus the median of the 11 control ones (the paper's
   medians, its control median taken as 0).
@@ -71,7 +74,7 @@ What it shows (full run; the numbers are printed and written to
 * Afterimage weight ``a = +0.040 +- 0.029`` (95 % interval -0.017 to
   +0.098): one experiment of 11 participants does not tell it from 0, as
   the paper's non-significant test says. The two estimates correlate at
-  r = 0.000: each median pins its own weight. (With the retinal maps
+  r = 0.000, as the diagonal Jacobian makes them. (With the retinal maps
   blurred 1 pixel a frame on these small renders, 2 degrees a second
   where the paper's spread 0.086, the rim's tint was -0.11, the
   desaturation weight carried part of the -0.02, and the fit gave ``a =
@@ -123,7 +126,10 @@ from jaxadapt.psychophysics import observer as obs  # noqa: E402
 PROTOCOLS = ("afterimage", "mesopic")
 #: The fitted fields of :class:`CueWeights`, one per experiment.
 NAMES = ("afterimage", "mesopic")
-#: Participants analysed per experiment (13 recruited, 2 excluded).
+#: Participants analysed per experiment (13 recruited, 2 excluded). §4.2.1
+#: excludes one more from the mesopic analysis, but its p = 2.84e-6 is the
+#: exact rank-sum p of 11 + 11 fully separated PSEs, 2 / C(22, 11) (10 + 10
+#: would give 1.08e-5; :mod:`jaxadapt.psychophysics.stats`): 11 in both.
 ANALYSED = 11
 #: Groups of :data:`ANALYSED` observers averaged by the model.
 GROUPS = 2000

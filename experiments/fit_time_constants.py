@@ -36,7 +36,21 @@ What it shows (the numbers are printed by the run and written to
   ``B = 1 / (1 + G tau / c)`` (Eq 7's fixed point). Freeing c_rod and
   c_cone as well shows it: tau_cone and c_cone then correlate at 0.999,
   only their ratio is determined, and both standard errors exceed the
-  estimates (the t0 and tau_rod results do not change).
+  estimates (median 1.13 and 1.15 of them; c_rod's is 0.89 of its own).
+  ``converged`` stays True in 99 % of those fits, since every parameter is
+  identified in the numeric sense (a finite standard error); how well one
+  is determined is its standard error against its estimate. Along that
+  ridge the likelihood is far from quadratic, and the 95 % intervals of
+  tau_cone cover the truth in 62 % of the observers, not 95 % (the t0 and
+  tau_rod results do not change).
+* The curves are the 2000 model's with the paper's constants, not the
+  measured ones the protocol follows: after the 1e6 cd/m2 field the cones
+  are a third bleached (B_cone = 0.67), their threshold falls with the
+  neural adaptation (t0_cone = 80 ms), and the rods, whose pigment comes
+  back from B_rod = 4e-8 at 1/tau_rod, are already the more sensitive
+  5 s into the dark; measured curves (Haig's, the paper's Fig. 2) show the
+  rod-cone break after several minutes. The fits recover the constants of
+  whatever data they are given; these data test the fitting, not the model.
 
 Writes ``fit_time_constants.png``, ``estimates.csv`` and ``summary.json``.
 """
@@ -221,15 +235,19 @@ def main():
     for k in range(3):
         ax = fig.add_subplot(grid[0, k])
         sel = segment == k
-        t = np.maximum(since[sel], 3e-3)
+        t = np.maximum(since[sel], 3e-3)  # the sample at the step itself, drawn at 3 ms
         ax.plot(t, data[0][sel], "o", ms=3, color="k", label="simulated thresholds")
         ax.plot(t, pred[sel], "-", color="C3", label="fit")
         ax.plot(t, np.where(np.isfinite(rod[sel]), rod[sel], np.nan), ":", color="C0", label="rods")
         ax.plot(t, cone[sel], "--", color="C1", label="cones")
-        ax.set(xscale="log", xlabel="time since the step (s)", title=titles[k])
+        ax.set(
+            xscale="log",
+            xlabel="time since the step (s; the step itself at 3 ms)",
+            ylabel="log$_{10}$ threshold (cd/m$^2$)",
+            title=titles[k],
+        )
         ax.set_ylim(np.nanmin(data[0][sel]) - 0.5, np.nanmax(data[0][sel]) + 0.5)
         if k == 0:
-            ax.set_ylabel("log$_{10}$ threshold (cd/m$^2$)")
             ax.legend(fontsize=8)
     ax = fig.add_subplot(grid[0, 3])
     for i, name in enumerate(NAMES):
@@ -281,7 +299,7 @@ def main():
     ax.set_xticks(range(len(names_c)), names_c, rotation=45, fontsize=8)
     ax.set_yticks(range(len(names_c)), names_c, fontsize=8)
     ax.set_title("correlations, three steps, c free")
-    fig.colorbar(image, ax=ax, shrink=0.8)
+    fig.colorbar(image, ax=ax, shrink=0.8, label="correlation of the estimates (median)")
     fig.suptitle("Recovering t0 and tau from thresholds during dark and light adaptation")
     fig.tight_layout()
     fig.savefig(out / "fit_time_constants.png", dpi=100)

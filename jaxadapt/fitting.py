@@ -215,7 +215,12 @@ class Fit(eqx.Module):
     converged : array of bool
         The solver met its tolerance within ``max_steps``, every parameter is
         identified (finite standard error) and ``newton_step`` is at most
-        :data:`NEWTON_STEP`.
+        :data:`NEWTON_STEP`. It says the estimate is the minimum, not that
+        the data determine it well: a parameter the data barely constrain
+        has a finite standard error larger than its estimate (``se``
+        against ``estimate`` tells), and its Wald interval, symmetric in
+        natural units, can reach below 0 for a positive parameter and cover
+        the truth less often than its level says.
     solved : array of bool
         The solver met its tolerance, identified or not.
     steps : array of int

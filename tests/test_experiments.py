@@ -68,3 +68,16 @@ def test_run_scene_starts_from_the_scenes_prior_adaptation(monkeypatch):
     for adaptation, log_A in ((None, 2.0), (1e4, 4.0)):
         _, diag = run_scene(scene._replace(adaptation=adaptation), params)
         assert float(diag.A[0]) == pytest.approx(log_A)
+
+
+@pytest.mark.parametrize("smoke", [True, False])
+def test_a_smoke_run_says_its_numbers_are_not_the_full_runs(smoke, monkeypatch, tmp_path, capsys):
+    monkeypatch.syspath_prepend(str(EXPERIMENTS))
+    common = importlib.import_module("common")
+    argv = ["script", "--out", str(tmp_path / "out")] + (["--smoke"] if smoke else [])
+    monkeypatch.setattr("sys.argv", argv)
+    args, out = common.setup("fit_tvi", "A script.")
+    assert args.smoke == smoke and out.is_dir()
+    said = capsys.readouterr().out
+    assert ("fit_tvi: smoke run" in said and "not the full run's" in said) == smoke
+    assert said == "" or smoke
