@@ -272,8 +272,14 @@ def main():
             plateau_sigma=one.plateau_sigma,
             plateau_n=one.plateau_n,
         )
+        # A fit that does not identify M_max and the criterion pins only
+        # the thresholds they make together, not M itself.
+        caveat = "" if bool(plateau.converged[i]) else " (not identified: M arbitrary)"
         mx.plot(
-            fine, jacobs2015.plateau(law, 10.0**fine), color=colour, label=f"fitted M, {system}"
+            fine,
+            jacobs2015.plateau(law, 10.0**fine),
+            color=colour,
+            label=f"fitted M, {system}{caveat}",
         )
         res.plot(
             log_L[used],
