@@ -220,13 +220,16 @@ class Fit(eqx.Module):
         has a finite standard error larger than its estimate (``se``
         against ``estimate`` tells), and its Wald interval, symmetric in
         natural units, can reach below 0 for a positive parameter and cover
-        the truth less often than its level says.
+        the truth less often than its level says (:meth:`interval` maps it
+        through the reparameterisation instead).
     solved : array of bool
         The solver met its tolerance, identified or not.
     steps : array of int
         Iterations the solver took.
     names : tuple of str
         The fitted fields (static).
+    bounds : tuple of (float, float)
+        Each fitted field's ``(low, high)`` (static), as fitted.
     """
 
     params: Any
@@ -243,6 +246,53 @@ class Fit(eqx.Module):
     solved: jax.Array
     steps: jax.Array
     names: tuple = eqx.field(static=True)
+    bounds: tuple = eqx.field(static=True)
+
+    def interval(self, level=0.95):
+        """Confidence intervals by name, ``(lower, upper)`` in natural units,
+        from the standard errors of the free values the fit worked on.
+
+        ``u +- z se_u`` mapped back through each field's bounds (the table
+        in the module notes), with ``se_u = se / |dp/du|`` (the delta method
+        undone) and ``z`` the normal quantile of ``(1 + level) / 2``: a
+        positive parameter gets ``p exp(+-z se / p)``, which stays above 0
+        and is wider above the estimate than below it; an unbounded one the
+        Wald interval ``p +- z se``. Where the log (or logit) of a parameter
+        is closer to normal than the parameter itself, as for a time
+        constant known to a factor, it covers better than the Wald
+        interval. A parameter that is not identified (``se`` inf) gets its
+        bounds.
+
+        Examples
+        --------
+        >>> import equinox as eqx
+        >>> class Line(eqx.Module):
+        ...     b: jax.Array
+        >>> x = jnp.linspace(1.0, 2.0, 5)
+        >>> y = 2.0 * x + 0.01 * jnp.sin(9.0 * x)
+        >>> f = fit(lambda p, x: p.b * x, Line(jnp.array(1.0)), ["b"], y, args=x)
+        >>> low, high = f.interval()["b"]
+        >>> bool(0 < low < f.estimate["b"] < high)
+        True
+        """
+        if not 0 < level < 1:
+            raise ValueError(f"level: expected a number between 0 and 1, got {level!r}")
+        z = jax.scipy.special.ndtri((1.0 + level) / 2.0)
+        out = OrderedDict()
+        for name, (low, high) in zip(self.names, self.bounds, strict=True):
+            free = _Free(name, low, high)
+            p, se = jnp.asarray(self.estimate[name]), jnp.asarray(self.se[name])
+            u = _to_free(p, free)
+            se_u = se / jnp.abs(_derivative(u, free))
+            ends = [_to_natural(u + sign * z * se_u, free) for sign in (-1.0, 1.0)]
+            if math.isinf(low) and not math.isinf(high):  # p = high - exp(u) falls as u rises
+                ends.reverse()
+            identified = jnp.isfinite(se)
+            out[name] = (
+                jnp.where(identified, ends[0], low).astype(p.dtype),
+                jnp.where(identified, ends[1], high).astype(p.dtype),
+            )
+        return out
 
     @property
     def correlation(self):
@@ -952,6 +1002,7 @@ class _Problem(eqx.Module):
             solved=solved,
             steps=jnp.asarray(steps, jnp.int32),
             names=tuple(f.name for f in self.spec),
+            bounds=tuple((f.low, f.high) for f in self.spec),
         )
 
 

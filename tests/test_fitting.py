@@ -277,6 +277,10 @@ def test_flat_data_are_flagged_and_finite():
     assert np.all(np.isfinite(f.residuals)) and np.all(np.isfinite(f.loss))
     corr = np.asarray(f.correlation)
     assert np.all(np.isfinite(corr)) and np.all(corr[:, 0, 3] == 0.0)
+    # Intervals: a parameter not identified gets its bounds (positive: 0 to inf).
+    for name in ("t0_rod", "t0_cone", "tau_rod"):
+        low, high = f.interval()[name]
+        assert np.all(np.asarray(low) == 0.0) and np.all(np.asarray(high) == np.inf)
 
 
 def test_a_parameter_run_off_its_flat_direction_leaves_the_others_identified():
@@ -452,6 +456,55 @@ def test_least_squares_matches_scipy_curve_fit(decays):
         assert np.all(np.abs(fwd.estimate[name] - f.estimate[name]) < 1e-3 * f.se[name])
         np.testing.assert_allclose(bwd.estimate[name], fwd.estimate[name], rtol=1e-7)
         np.testing.assert_allclose(bwd.se[name], fwd.se[name], rtol=1e-6)
+
+
+def test_intervals_follow_each_fields_bounds(decays):
+    """``Fit.interval``: ``u +- z se_u`` mapped back through the bounds, by
+    the formulas of each map written out here."""
+    data, f = decays
+    z = norm.ppf(0.975)
+    got = f.interval()
+    for name in ("a", "b"):  # positive: p exp(+-z se / p)
+        p, se = np.asarray(f.estimate[name]), np.asarray(f.se[name])
+        np.testing.assert_allclose(got[name][0], p * np.exp(-z * se / p), rtol=1e-12)
+        np.testing.assert_allclose(got[name][1], p * np.exp(z * se / p), rtol=1e-12)
+    p, se = np.asarray(f.estimate["c"]), np.asarray(f.se["c"])  # unbounded: Wald
+    np.testing.assert_allclose(got["c"][0], p - z * se, rtol=1e-12)
+    np.testing.assert_allclose(got["c"][1], p + z * se, rtol=1e-12)
+    narrow = f.interval(0.5)["a"]
+    assert np.all(narrow[0] > got["a"][0]) and np.all(narrow[1] < got["a"][1])
+
+    # Both ends bounded (a logistic map) and only the upper one (p = 5 - exp(u)).
+    bounded = fitting.fit(
+        decay, Decay(), ABC, data, args=T, bounds={"a": (0.0, 10.0), "b": (-np.inf, 5.0), "c": None}
+    )
+    got = bounded.interval()
+    p, se = np.asarray(bounded.estimate["a"]), np.asarray(bounded.se["a"])
+    x = p / 10.0
+    u, se_u = np.log(x / (1 - x)), se / (10.0 * x * (1 - x))
+    np.testing.assert_allclose(got["a"][0], 10.0 / (1 + np.exp(-(u - z * se_u))), rtol=1e-10)
+    np.testing.assert_allclose(got["a"][1], 10.0 / (1 + np.exp(-(u + z * se_u))), rtol=1e-10)
+    p, se = np.asarray(bounded.estimate["b"]), np.asarray(bounded.se["b"])
+    room = 5.0 - p
+    np.testing.assert_allclose(got["b"][0], 5.0 - room * np.exp(z * se / room), rtol=1e-10)
+    np.testing.assert_allclose(got["b"][1], 5.0 - room * np.exp(-z * se / room), rtol=1e-10)
+    for name in ("a", "b"):
+        assert np.all(got[name][0] < bounded.estimate[name])
+        assert np.all(bounded.estimate[name] < got[name][1])
+    with pytest.raises(ValueError, match="level: expected a number between 0 and 1, got 95"):
+        f.interval(95)
+
+
+def test_a_weakly_determined_positive_parameter_keeps_a_positive_interval():
+    # a = 0.03 in noise of sd 0.05: its standard error is near its size and
+    # the Wald interval reaches below 0; the interval through log(a) does not.
+    rng = np.random.default_rng(1)
+    data = 0.03 * np.exp(-np.asarray(T) / 0.7) + 0.3 + SD * rng.standard_normal(T.size)
+    f = fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
+    a, se = float(f.estimate["a"]), float(f.se["a"])
+    assert bool(f.converged) and se > a / 2 and a - norm.ppf(0.975) * se < 0
+    low, high = f.interval()["a"]
+    assert 0 < float(low) < a < float(high)
 
 
 @pytest.mark.parametrize("dtype, scales", [("float64", (1e-9, 1e9)), ("float32", (1e-4, 1e5))])
