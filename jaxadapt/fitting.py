@@ -284,13 +284,12 @@ class Fit(eqx.Module):
             p, se = jnp.asarray(self.estimate[name]), jnp.asarray(self.se[name])
             u = _to_free(p, free)
             se_u = se / jnp.abs(_derivative(u, free))
-            ends = [_to_natural(u + sign * z * se_u, free) for sign in (-1.0, 1.0)]
-            if math.isinf(low) and not math.isinf(high):  # p = high - exp(u) falls as u rises
-                ends.reverse()
+            # Each map is monotonic (``high - exp(u)`` falling): its ends in order.
+            a, b = (_to_natural(u + sign * z * se_u, free) for sign in (-1.0, 1.0))
             identified = jnp.isfinite(se)
             out[name] = (
-                jnp.where(identified, ends[0], low).astype(p.dtype),
-                jnp.where(identified, ends[1], high).astype(p.dtype),
+                jnp.where(identified, jnp.minimum(a, b), low).astype(p.dtype),
+                jnp.where(identified, jnp.maximum(a, b), high).astype(p.dtype),
             )
         return out
 
