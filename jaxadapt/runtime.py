@@ -70,8 +70,9 @@ def cache_compilations(folder=None):
     (a profiled ``psychometric fit`` compiled 78 programs, most of them
     small, in 20.6 s of its 44 s) and read back by later processes with the same
     program, JAX, XLA flags and device. JAX keeps no program with a host
-    callback: those with value checks inside (``equinox.error_if``: the
-    operators' ``run``) are compiled every time. Call it before the first
+    callback (``equinox.error_if``): the operators called outside ``jit``
+    check on the host (:func:`jaxadapt.operators.checks.value_check`) so
+    that theirs are kept. Call it before the first
     JAX computation. JAX's own settings win: with
     ``JAX_COMPILATION_CACHE_DIR`` in the environment (``""`` turns the
     cache off) nothing is changed.

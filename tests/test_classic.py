@@ -358,13 +358,13 @@ def test_run_and_step_check_frames_and_dt_as_the_other_operators():
         (frames, jnp.nan, "dt: expected positive"),
         (frames, -1.0, "dt: expected positive"),
     ):
-        with pytest.raises(eqx.EquinoxRuntimeError, match=match):
+        with pytest.raises(ValueError, match=f"^{match}"):
             classic.run(p, bad, dt)
     with pytest.raises(ValueError, match=r"^dt: expected a scalar or shape \(2,\)"):
         classic.run(p, frames, jnp.ones(3))
     with pytest.raises(ValueError, match=r"^frames: .* got float\d+ of shape \(2, 4, 4, 4\)"):
         classic.run(p, jnp.ones((2, 4, 4, 4)), 0.1)
-    with pytest.raises(eqx.EquinoxRuntimeError, match="frame: expected finite, non-negative"):
+    with pytest.raises(ValueError, match="^frame: expected finite, non-negative"):
         classic.step(p, None, -frames[0], 0.1)
     np.testing.assert_array_equal(
         classic.step(p, None, frames[0], 0.1)[1], classic.run(p, frames, 0.1)[0][0]

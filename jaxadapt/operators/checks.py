@@ -3,8 +3,10 @@
 Shapes, ranks and dtypes are checked before tracing and raise
 ``ValueError`` naming the argument, what was expected and what came;
 values (finite, non-negative luminance, positive durations) are checked
-inside ``jit`` with ``equinox.error_if``, which raises
-``equinox.EquinoxRuntimeError`` with the same kind of message.
+inside the operators' compiled programs (:func:`value_check`): called as
+they are, the operators raise ``ValueError`` after the call; inside the
+caller's ``jit`` or ``vmap``, ``equinox.error_if`` raises
+``equinox.EquinoxRuntimeError`` with the same message.
 """
 
 import dataclasses
@@ -17,48 +19,88 @@ import numpy as np
 from jaxadapt.spatial import check_value
 
 
-def check_frames(frames, rank, name="frames"):
-    """Check frames of linear RGB in cd/m2 and return their value guard.
+def check_frames(frames, rank, name="frames", on_host=False):
+    """Check frames of linear RGB in cd/m2; return their value check
+    ``(guard, verdict)`` (:func:`value_check`).
 
     The shape must be ``(T, H, W, 3)`` (rank 4) or ``(H, W, 3)`` (rank 3),
     no axis of length 0, and the dtype floating point (``ValueError`` at once otherwise); the
-    values must be finite and non-negative. That value check is returned as
-    ``guard``, an exact zero scalar of the frames' dtype that raises when it
-    is computed on bad frames: add it to the operator's scalar state, which
-    every result depends on. Raising on the frames themselves
+    values must be finite and non-negative. The guard is an exact zero
+    scalar of the frames' dtype: add it to the operator's scalar state,
+    which every result depends on. Raising on the frames themselves
     (``eqx.error_if(frames, ...)``) routes them through a conditional, and XLA
     then copies the whole sequence: on a GPU that copy cost more than the
     operator's own pixel work. The check counts the bad pixels of each frame
     by a floating-point sum over ``(H, W)``, the form of the operators'
     per-frame goal reductions, so that XLA reads the frames once for both.
     """
-    zero = jnp.zeros((), _frames_dtype(frames, rank, name))
-    return eqx.error_if(zero, _bad_frames(frames), _frames_message(name))
+    dtype = _frames_dtype(frames, rank, name)
+    return value_check(dtype, [_bad_frames(frames)], frames_messages(name), on_host)
 
 
-def check_frames_and_dt(frames, dt, rank, name="frames"):
+def frames_messages(name="frames"):
+    """The messages of :func:`check_frames`, one per condition."""
+    return (f"{name}: expected finite, non-negative luminance (cd/m2)",)
+
+
+def frames_and_dt_messages(name="frames"):
+    """The messages of :func:`check_frames_and_dt`, one per condition."""
+    return (*frames_messages(name), "dt: expected positive frame durations (s)")
+
+
+def check_frames_and_dt(frames, dt, rank, name="frames", on_host=False):
     """:func:`check_frames`, and the frame durations ``dt`` (s): a scalar or
-    one per frame, positive. Returns ``(guard, dt)``, ``dt`` of shape
-    ``(T,)`` (``(1,)`` for a single frame, rank 3).
+    one per frame, positive. Returns ``(guard, dt, verdict)``, ``dt`` of
+    shape ``(T,)`` (``(1,)`` for a single frame, rank 3).
 
-    Both value checks raise from one conditional on ``guard``. Each
-    conditional is a copy of its predicate to the host and a wait for it
-    (about 0.1 ms on an H100, where ``run`` on 60 1080p frames takes 3 ms),
-    and in a fit through ``run`` it is taken at every solver step.
+    Both value checks are one conditional on ``guard`` (or one verdict).
+    Each conditional is a copy of its predicate to the host and a wait for
+    it, and in a fit through ``run`` it is taken at every solver step.
     """
     dtype = _frames_dtype(frames, rank, name)
     T = frames.shape[0] if rank == 4 else 1
     if dt.ndim > 1 or (dt.ndim == 1 and dt.shape[0] != T):
         raise ValueError(f"dt: expected a scalar or shape ({T},) in seconds, got shape {dt.shape}")
     dt = jnp.broadcast_to(dt, (T,))
-    bad_frames, bad_dt = _bad_frames(frames), ~jnp.all(dt > 0)
-    guard = eqx.branched_error_if(
-        jnp.zeros((), dtype),
-        bad_frames | bad_dt,
-        jnp.where(bad_frames, 0, 1),
-        (_frames_message(name), "dt: expected positive frame durations (s)"),
-    )
-    return guard, dt
+    bad = [_bad_frames(frames), ~jnp.all(dt > 0)]
+    guard, verdict = value_check(dtype, bad, frames_and_dt_messages(name), on_host)
+    return guard, dt, verdict
+
+
+def is_traced(*trees):
+    """Whether a leaf of ``trees`` is a tracer: the caller is inside
+    ``jit``, ``vmap`` or a derivative, where no value can reach Python."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
+
+
+def value_check(dtype, bad, messages, on_host):
+    """The check of the conditions ``bad`` (boolean scalars, True where
+    ``messages[i]`` applies), inside compiled code: ``(guard, verdict)``.
+
+    With ``on_host`` False, ``guard`` is an exact zero of ``dtype`` that
+    raises ``equinox.EquinoxRuntimeError`` with the first message that
+    applies when it is computed, and ``verdict`` is None. With ``on_host``
+    True, ``guard`` is a plain zero and ``verdict`` an int32 scalar, 0 if
+    no condition holds, else 1 plus the index of the first that does, for
+    :func:`raise_verdict` to raise after the call. An operator called
+    outside ``jit`` (:func:`is_traced`) checks on the host: its program
+    then holds no host callback, which JAX's persistent compilation cache
+    cannot keep, and its error is a ``ValueError`` whose text is the
+    message.
+    """
+    zero = jnp.zeros((), dtype)
+    which = jnp.argmax(jnp.stack(bad)).astype(jnp.int32)
+    if on_host:
+        return zero, jnp.where(jnp.any(jnp.stack(bad)), which + 1, 0)
+    return eqx.branched_error_if(zero, jnp.any(jnp.stack(bad)), which, messages), None
+
+
+def raise_verdict(verdict, messages):
+    """Raise ``ValueError(messages[verdict - 1])`` for a verdict of
+    :func:`value_check` other than 0 (it waits for the computation that
+    gives it); nothing for 0 or None."""
+    if verdict is not None and (code := int(verdict)):
+        raise ValueError(messages[code - 1])
 
 
 def _computable(dtype):
@@ -106,10 +148,6 @@ def _bad_frames(frames):
     ok = [jnp.isfinite(frames[..., c]) & (frames[..., c] >= 0) for c in range(3)]
     n_bad = jnp.sum(jnp.where(ok[0] & ok[1] & ok[2], 0.0, 1.0), axis=(-2, -1), dtype=frames.dtype)
     return jnp.any(n_bad > 0)
-
-
-def _frames_message(name):
-    return f"{name}: expected finite, non-negative luminance (cd/m2)"
 
 
 def check_one_parameter_set(params, shapes=None):

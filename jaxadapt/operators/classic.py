@@ -29,7 +29,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import photopic_luminance
-from jaxadapt.operators.checks import as_dtype, check_frames_and_dt, check_rgb
+from jaxadapt.operators.checks import (
+    as_dtype,
+    check_frames_and_dt,
+    check_rgb,
+    frames_and_dt_messages,
+    is_traced,
+    raise_verdict,
+)
 from jaxadapt.operators.goal import (
     LUMINANCE_FLOOR,
     check_background,
@@ -507,18 +514,24 @@ def _frame_background(params):
     return partial(estimate_background, name=params.background, scale=params.background_scale)
 
 
-@eqx.filter_jit
 def step(params, state, frame, dt, *, gaze=None, key=None):
     """Tone-map one frame ``(H, W, 3)``; returns ``(None, display frame)``.
 
     ``frame`` and ``dt`` are checked as the other operators check them
     (:func:`~jaxadapt.operators.checks.check_frames_and_dt`).
     """
-    guard, _ = check_frames_and_dt(jnp.asarray(frame), jnp.asarray(dt), 3, "frame")
-    return None, tone_map(params.curve, frame + guard, _frame_background(params))
+    frame, dt = jnp.asarray(frame), jnp.asarray(dt)
+    out, verdict = _step(params, frame, dt, not is_traced(params, frame, dt))
+    raise_verdict(verdict, frames_and_dt_messages("frame"))
+    return None, out
 
 
 @eqx.filter_jit
+def _step(params, frame, dt, on_host):
+    guard, _, verdict = check_frames_and_dt(frame, dt, 3, "frame", on_host)
+    return tone_map(params.curve, frame + guard, _frame_background(params)), verdict
+
+
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
     """Tone-map frames ``(T, H, W, 3)`` (cd/m2) one by one with ``params.curve``.
 
@@ -530,11 +543,19 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     non-negative luminance, positive durations).
     """
     frames = jnp.asarray(frames)
-    guard, dt = check_frames_and_dt(frames, jnp.asarray(dt, frames.dtype), 4)
+    dt = jnp.asarray(dt, frames.dtype)
+    out, diagnostics, verdict = _run(params, frames, dt, not is_traced(params, frames, dt))
+    raise_verdict(verdict, frames_and_dt_messages("frames"))
+    return out, diagnostics
+
+
+@eqx.filter_jit
+def _run(params, frames, dt, on_host):
+    guard, dt, verdict = check_frames_and_dt(frames, dt, 4, on_host=on_host)
     background = _frame_background(params)
     out, I_b = jax.lax.map(lambda f: _tone_map_checked(params.curve, f + guard, background), frames)
     mean_background = jnp.exp(jnp.mean(jnp.log(I_b), axis=(-2, -1)))
-    return out, Diagnostics(jnp.cumsum(dt) - dt, mean_background)
+    return out, Diagnostics(jnp.cumsum(dt) - dt, mean_background), verdict
 
 
 def diagnostics_table(diag):

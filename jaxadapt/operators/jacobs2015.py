@@ -107,6 +107,10 @@ from jaxadapt.operators.checks import (
     check_frames_and_dt,
     check_one_parameter_set,
     check_state,
+    frames_and_dt_messages,
+    frames_messages,
+    is_traced,
+    raise_verdict,
 )
 from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_average, frame_centre
 from jaxadapt.physiology import kinetics
@@ -916,16 +920,20 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     first_frame = jnp.asarray(first_frame)
     gaze = _default_gaze(gaze, first_frame, rank=3)
     check_adaptation(adaptation)
-    return _init(params, first_frame, gaze, _check_key(params, key), adaptation)
+    key = _check_key(params, key)
+    on_host = not is_traced(params, first_frame, gaze, key, adaptation)
+    state, verdict = _init(params, first_frame, gaze, key, adaptation, on_host)
+    raise_verdict(verdict, frames_messages("first_frame"))
+    return state
 
 
 @eqx.filter_jit
-def _init(params, first_frame, gaze, key, adaptation):
-    guard = check_frames(first_frame, 3, "first_frame")
+def _init(params, first_frame, gaze, key, adaptation, on_host):
+    guard, verdict = check_frames(first_frame, 3, "first_frame", on_host)
     check_one_parameter_set(params, CHANNEL_FIELDS)
     params = as_dtype(params, first_frame.dtype)
     state = _initial_state(params, first_frame, gaze, key, adaptation)
-    return state._replace(A=state.A + guard)
+    return state._replace(A=state.A + guard), verdict
 
 
 def diagnostics_table(diag):
@@ -977,13 +985,16 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     check_state(state, State, "jacobs2015")
     if key is not None:
         state = state._replace(key=key)
-    new_state, out, _ = _step(params, state, frame, _as_frame_dtype(dt, frame), gaze)
+    dt = _as_frame_dtype(dt, frame)
+    on_host = not is_traced(params, state, frame, dt, gaze)
+    new_state, out, verdict = _step(params, state, frame, dt, gaze, on_host)
+    raise_verdict(verdict, frames_and_dt_messages("frame"))
     return new_state, out
 
 
 @eqx.filter_jit
-def _step(params, state, frame, dt, gaze):
-    guard, dt = check_frames_and_dt(frame, dt, 3, "frame")
+def _step(params, state, frame, dt, gaze, on_host):
+    guard, dt, verdict = check_frames_and_dt(frame, dt, 3, "frame", on_host)
     if state.B.shape != frame.shape:
         raise ValueError(
             f"frame: expected the shape of the state's maps {state.B.shape}, got {frame.shape}"
@@ -991,7 +1002,8 @@ def _step(params, state, frame, dt, gaze):
     check_one_parameter_set(params, CHANNEL_FIELDS)
     params, state, dt = as_dtype((params, state, dt[0]), frame.dtype)
     state = state._replace(A=state.A + guard)
-    return _frame(params, state, frame, dt, gaze)
+    new_state, out, _ = _frame(params, state, frame, dt, gaze)
+    return new_state, out, verdict
 
 
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
@@ -1038,12 +1050,16 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     else:
         check_state(state, State, "jacobs2015")
         state = state if key is None else state._replace(key=key)
-    return _run(params, frames, _as_frame_dtype(dt, frames), gaze, key, state)
+    dt = _as_frame_dtype(dt, frames)
+    on_host = not is_traced(params, frames, dt, gaze, key, state)
+    out, diagnostics, verdict = _run(params, frames, dt, gaze, key, state, on_host)
+    raise_verdict(verdict, frames_and_dt_messages("frames"))
+    return out, diagnostics
 
 
 @eqx.filter_jit
-def _run(params, frames, dt, gaze, key, state):
-    guard, dt = check_frames_and_dt(frames, dt, 4)
+def _run(params, frames, dt, gaze, key, state, on_host):
+    guard, dt, verdict = check_frames_and_dt(frames, dt, 4, on_host=on_host)
     check_one_parameter_set(params, CHANNEL_FIELDS)
     params, state, dt = as_dtype((params, state, dt), frames.dtype)
     if state is None:
@@ -1055,4 +1071,4 @@ def _run(params, frames, dt, gaze, key, state):
         return s, (out, record)
 
     final_state, (out, record) = jax.lax.scan(scan_step, state, (frames, dt, gaze))
-    return out, record._replace(final_state=final_state)
+    return out, record._replace(final_state=final_state), verdict

@@ -55,6 +55,10 @@ from jaxadapt.operators.checks import (
     check_one_parameter_set,
     check_rgb,
     check_state,
+    frames_and_dt_messages,
+    frames_messages,
+    is_traced,
+    raise_verdict,
 )
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
@@ -596,7 +600,6 @@ def _fixation(frames, gaze):
     return goals.fixation(gaze, centre, shape)
 
 
-@eqx.filter_jit
 def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
     """State of a viewer fully adapted before the sequence starts.
 
@@ -624,6 +627,14 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         dtype (the dtype :func:`run` returns its final state in, so that a
         sequence run in chunks compiles ``run`` once).
     """
+    on_host = not is_traced(params, first_frame, gaze, adaptation)
+    state, verdict = _init(params, first_frame, gaze, adaptation, on_host)
+    raise_verdict(verdict, frames_messages("first_frame"))
+    return state
+
+
+@eqx.filter_jit
+def _init(params, first_frame, gaze, adaptation, on_host):
     check_one_parameter_set(params)
     if adaptation is not None:
         floating = first_frame is not None and jnp.issubdtype(first_frame.dtype, jnp.floating)
@@ -632,11 +643,11 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         A = jnp.maximum(jnp.asarray(adaptation, dtype=dtype), goals.LUMINANCE_FLOOR)
         if params.background != "global" and first_frame is not None:
             A = jnp.broadcast_to(A, first_frame.shape[:2])  # as run() carries it
-        return static_state(as_dtype(params, dtype), A, A)
-    guard = check_frames(first_frame, 3, "first_frame")
+        return static_state(as_dtype(params, dtype), A, A), None
+    guard, verdict = check_frames(first_frame, 3, "first_frame", on_host)
     params = as_dtype(params, first_frame.dtype)
     G_rod, G_cone = frame_goals(params, first_frame, _fixation(first_frame, gaze))
-    return static_state(params, G_rod + guard, G_cone + guard)
+    return static_state(params, G_rod + guard, G_cone + guard), verdict
 
 
 def _probe(x, gaze):
@@ -696,12 +707,16 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
     """
     gaze = None if gaze is None else jnp.asarray(gaze)
     check_state(state, State, "pattanaik2000")
-    return _step(params, state, jnp.asarray(frame), jnp.asarray(dt), gaze)
+    frame, dt = jnp.asarray(frame), jnp.asarray(dt)
+    on_host = not is_traced(params, state, frame, dt, gaze)
+    state, out, verdict = _step(params, state, frame, dt, gaze, on_host)
+    raise_verdict(verdict, frames_and_dt_messages("frame"))
+    return state, out
 
 
 @eqx.filter_jit
-def _step(params, state, frame, dt, gaze):
-    guard, dt = check_frames_and_dt(frame, dt, 3, "frame")
+def _step(params, state, frame, dt, gaze, on_host):
+    guard, dt, verdict = check_frames_and_dt(frame, dt, 3, "frame", on_host)
     check_one_parameter_set(params)
     params, state, dt, gaze = as_dtype((params, state, dt[0], gaze), frame.dtype)
     state = jax.tree.map(lambda s: s + guard, state)
@@ -709,7 +724,7 @@ def _step(params, state, frame, dt, gaze):
     G_rod, G_cone = frame_goals(params, frame, gaze)
     one = jax.tree.map(lambda x: x[None], (G_rod, G_cone, state, frame, gaze))
     out, _ = _display(params, *one)
-    return advance(params, state, G_rod, G_cone, dt), out[0]
+    return advance(params, state, G_rod, G_cone, dt), out[0], verdict
 
 
 def run(params, frames, dt, *, gaze=None, key=None, state=None):
@@ -751,7 +766,11 @@ def run(params, frames, dt, *, gaze=None, key=None, state=None):
     ((4, 2, 2, 3), (4,))
     """
     gaze = None if gaze is None else jnp.asarray(gaze)
-    return _run(params, jnp.asarray(frames), jnp.asarray(dt), gaze, state)
+    frames, dt = jnp.asarray(frames), jnp.asarray(dt)
+    on_host = not is_traced(params, frames, dt, gaze, state)
+    out, diagnostics, verdict = _run(params, frames, dt, gaze, state, on_host)
+    raise_verdict(verdict, frames_and_dt_messages("frames"))
+    return out, diagnostics
 
 
 def _checked_state(state, shape, guard):
@@ -772,8 +791,8 @@ def _checked_state(state, shape, guard):
 
 
 @eqx.filter_jit
-def _run(params, frames, dt, gaze, state):
-    guard, dt = check_frames_and_dt(frames, dt, 4)
+def _run(params, frames, dt, gaze, state, on_host):
+    guard, dt, verdict = check_frames_and_dt(frames, dt, 4, on_host=on_host)
     check_one_parameter_set(params)
     params, state, dt, gaze = as_dtype((params, state, dt, gaze), frames.dtype)
     T = frames.shape[0]
@@ -798,4 +817,4 @@ def _run(params, frames, dt, gaze, state):
         curve=curves,
         final_state=final_state,
     )
-    return out, diagnostics
+    return out, diagnostics, verdict
