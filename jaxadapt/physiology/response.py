@@ -37,7 +37,11 @@ def power(x, p):
     """
     positive = x > 0
     safe = jnp.where(positive, x, 1.0)
-    return jnp.where(positive, jnp.exp(p * jnp.log(safe)), jnp.where(x == 0, 0.0, jnp.nan))
+    # NaN as an array of x's dtype, not a literal: Triton's lowering of a
+    # Pallas kernel (jaxlib 0.11.2) took a NaN literal of a select as an
+    # integer and failed (jaxadapt.fused runs this inside such a kernel).
+    outside = jnp.where(x == 0, jnp.zeros_like(safe), jnp.full_like(safe, jnp.nan))
+    return jnp.where(positive, jnp.exp(p * jnp.log(safe)), outside)
 
 
 @array_like
@@ -106,7 +110,9 @@ def naka_rushton_inverse(R, sigma, B=1.0, n=N_HUNT):
 def _in_range(R, B, value):
     """``value`` of an inverse response where ``0 <= R < B``, ``inf`` where
     ``R = B`` (saturation) and NaN elsewhere."""
-    return jnp.where((R >= 0) & (R < B), value, jnp.where(R == B, jnp.inf, jnp.nan))
+    value = jnp.asarray(value)
+    beyond = jnp.where(R == B, jnp.full_like(value, jnp.inf), jnp.full_like(value, jnp.nan))
+    return jnp.where((R >= 0) & (R < B), value, beyond)  # (arrays, as in power)
 
 
 @array_like
