@@ -69,15 +69,54 @@ def read_hdr(path):
     """
     path = Path(path)
     with _hdr_image(path) as (image, header):
-        pixels = image.read_image(format="float")
+        pixels = _read_pfm(path) if image.format_name() == "pnm" else None
+        if pixels is None:
+            pixels = image.read_image(format="float")
         if pixels is None:
             raise ValueError(f"{path}: cannot read pixels ({_one_line(image.geterror())})")
     spec = header.spec
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
-    pixels = display_window(pixels[..., header.channels], spec) / np.float32(header.exposure)
+    if header.channels != list(range(pixels.shape[-1])):  # (a copy: only where needed)
+        pixels = pixels[..., header.channels]
+    pixels = display_window(pixels, spec)
+    if header.exposure != 1:
+        pixels = pixels / np.float32(header.exposure)
     if header.to_bt709 is not None:
         pixels = to_bt709_gamut(pixels, header.to_bt709)
     return np.ascontiguousarray(reorient(pixels, header.orientation))
+
+
+#: A PFM file's header: its kind (``PF`` colour, ``Pf`` grey), width,
+#: height and scale (negative: little-endian), each followed by one blank.
+_PFM_HEADER = re.compile(rb"(P[Ff])\s(\d+)\s(\d+)\s(\S+)\s")
+
+
+def _read_pfm(path):
+    """The pixels ``(H, W, C)`` of a PFM file whose header OpenImageIO has
+    read, top row first and times the scale's magnitude, as OpenImageIO
+    gives them; None for a header this does not parse (OpenImageIO then
+    reads it). OpenImageIO (3.2) reads the data in calls of a few kB: 75 ms
+    for a 1920x1080 frame, where reading its 25 MB at once takes about 10.
+    A file whose size is not its header's plus the pixels' is refused."""
+    with open(path, "rb") as f:
+        match = _PFM_HEADER.match(f.read(128))
+    if match is None:
+        return None
+    kind, width, height, scale = match.groups()
+    try:
+        scale = float(scale)
+    except ValueError:
+        return None
+    C, W, H = 3 if kind == b"PF" else 1, int(width), int(height)
+    if path.stat().st_size != match.end() + H * W * C * 4 or not math.isfinite(scale):
+        raise ValueError(
+            f"{path}: cannot read pixels (expected {H * W * C * 4} bytes of data after the "
+            f"header, got {path.stat().st_size - match.end()})"
+        )
+    dtype = "<f4" if scale < 0 else ">f4"
+    rows = np.fromfile(path, dtype, count=H * W * C, offset=match.end()).reshape(H, W, C)
+    pixels = rows[::-1].astype(np.float32)  # top row first, native byte order
+    return pixels if abs(scale) == 1 else pixels * np.float32(abs(scale))
 
 
 def to_bt709_gamut(rgb, matrix):
@@ -441,6 +480,9 @@ def write_image(path, pixels, encoding="srgb", fps=None):
     pixels = np.ascontiguousarray(pixels)
     _check_pixels(path, pixels)
     kind = "uint8" if pixels.dtype == np.uint8 else "float"
+    if Path(path).suffix.lower() == ".pfm":
+        _write_pfm(path, pixels)
+        return
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(path))
         if out is None:
@@ -459,6 +501,26 @@ def write_image(path, pixels, encoding="srgb", fps=None):
             out.close()
             raise OSError(f"{path}: cannot write ({msg})")
         out.close()
+
+
+def _write_pfm(path, pixels):
+    """Write floating-point ``(H, W, C)`` pixels as a PFM file: the header
+    (``PF`` for 3 channels, ``Pf`` for 1; the size; ``-1.0``, little-endian
+    float32) and the rows bottom to top, as the format stores them.
+
+    OpenImageIO's PFM writer (3.2) passes each value to its output stream
+    in a call of its own: 200 ms for a 1920x1080 frame, where writing its
+    25 MB takes about 10. The file reads back through OpenImageIO
+    (:func:`read_hdr`) to the same values.
+    """
+    C = pixels.shape[2]
+    if C not in (1, 3):
+        raise OSError(f"{path}: cannot write (PFM holds 1 or 3 channels, got {C})")
+    header = f"P{'F' if C == 3 else 'f'}\n{pixels.shape[1]} {pixels.shape[0]}\n-1.0\n"
+    rows = np.ascontiguousarray(pixels[::-1], dtype="<f4")
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(header.encode("ascii"))
+        rows.tofile(f)
 
 
 #: Formats of 8-bit display values and of floating-point values (TIFF holds either).

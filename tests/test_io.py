@@ -453,3 +453,35 @@ def test_a_frame_rate_written_is_read_back(tmp_path, fps):
     assert io.frame_rate(path) == pytest.approx(fps, rel=1e-12)
     io.write_image(path, np.ones((2, 3, 3), np.float32))
     assert io.frame_rate(path) is None
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_pfm_files_match_openimageio_both_ways(tmp_path, channels):
+    # PFM frames are written and read with NumPy (OpenImageIO's PFM writer
+    # and reader move a value or a few kB per call): OpenImageIO reads what
+    # is written, and read_hdr reads what OpenImageIO writes, to the bit.
+    import OpenImageIO as oiio
+
+    image = _gradient()[..., :channels] * np.float32(0.37)
+    ours = tmp_path / "ours.pfm"
+    io.write_image(ours, image)
+    config = oiio.ImageSpec()
+    config.attribute("pnm:pfmflip", 1)  # rows the right way up (io._hdr_image)
+    theirs = oiio.ImageInput.open(str(ours), config)
+    np.testing.assert_array_equal(theirs.read_image(format="float"), image)
+    theirs.close()
+    written = tmp_path / "theirs.pfm"
+    out = oiio.ImageOutput.create(str(written))
+    out.open(str(written), oiio.ImageSpec(image.shape[1], image.shape[0], channels, "float"))
+    out.write_image(image)
+    out.close()
+    expected = np.repeat(image, 3, axis=-1) if channels == 1 else image  # a grey's Y as RGB
+    np.testing.assert_array_equal(io.read_hdr(written), expected)
+
+
+def test_a_truncated_pfm_is_refused_in_one_line(tmp_path):
+    path = tmp_path / "cut.pfm"
+    io.write_image(path, _gradient())
+    path.write_bytes(path.read_bytes()[:-4])
+    with pytest.raises(ValueError, match=r"cut.pfm: cannot read pixels \(expected \d+ bytes"):
+        io.read_hdr(path)
