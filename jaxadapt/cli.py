@@ -160,6 +160,21 @@ def _folder(text):
     return Path(text)
 
 
+#: Factors of the suffixes ``--memory`` takes.
+_UNITS = {"": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
+
+
+def _memory(text):
+    """``--memory``: bytes, with an optional suffix K, M, G or T (powers of 1024)."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kmgt]?)i?b?\s*", text.lower())
+    value = float(match[1]) * _UNITS[match[2]] if match else 0
+    if not 2**20 <= value <= 2**50:
+        raise argparse.ArgumentTypeError(
+            f"expected a size from 1M to 1P, such as 500M or 2G, got {text!r}"
+        )
+    return int(value)
+
+
 #: Largest seed: JAX's keys take a 64-bit signed integer.
 MAX_SEED = 2**63 - 1
 
@@ -345,7 +360,18 @@ def build_parser():
         "jacobs2015, whose display values are its own gamma encoding",
     )
     render.add_argument(
-        "--chunk", type=int, default=32, help="frames processed per call (default: 32)"
+        "--chunk",
+        type=int,
+        default=None,
+        help="frames computed per call (default: as many as --memory allows, at most 32)",
+    )
+    render.add_argument(
+        "--memory",
+        type=_memory,
+        default=None,
+        metavar="SIZE",
+        help="memory for frames in flight (read ahead, computed, written behind), e.g. "
+        "500M or 2G (default: 1G); it sets the frames per call, which --chunk overrides",
     )
     psychometric = sub.add_parser(
         "psychometric",
@@ -638,7 +664,7 @@ def _check_options(args):
             )
         except ValueError as error:
             raise UsageError(str(error)) from None
-    if args.chunk < 1:
+    if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
 
 
@@ -801,7 +827,7 @@ def render(args, console):
     source = _source(args)
     _warn_numbers_out_of_order(args.files, console)
     if args.background_scale is not None or args.gaze is not None:
-        shape = source.frames(np.arange(1)).shape[1:3]  # read only when needed
+        shape = pipeline.frame_shape(source)
     if args.background_scale is not None:
         _check_scale_fits(args.background_scale, shape)
     if args.gaze is not None:
@@ -817,7 +843,7 @@ def render(args, console):
     op, params, plot, encoded = _operator(args, source, fps)
     # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
     encoding = "gamma" if encoded else args.encoding or "srgb"
-    encode = (lambda J: J) if encoded else display.ENCODINGS[encoding]
+    code_as = "linear" if encoded else encoding  # (display.ENCODINGS)
 
     out = args.out
     T = len(source.times)
@@ -837,9 +863,16 @@ def render(args, console):
             bar = Progress(console=console, transient=True, disable=not console.is_terminal)
             progress = stack.enter_context(bar)
             task = progress.add_task(f"rendering {source.name}", total=T)
-            key = jax.random.key(args.seed or 0)
-            for idx, linear, table in pipeline.chunks(op, params, source, args.chunk, key):
-                coded = display.to_uint8(encode(linear))
+
+            def write(chunk):
+                """Write a chunk's frames (in the write-behind thread)."""
+                idx, linear = chunk
+                shown = [k for k, i in enumerate(idx) if i in contact_idx]
+                coded = None
+                if {"png", "mp4"} & set(formats):
+                    coded = display.encode_uint8(linear, code_as)
+                elif shown:  # only the contact sheet's frames, one by one (one shape)
+                    coded = {k: display.encode_uint8(linear[k], code_as) for k in shown}
                 for k, i in enumerate(idx):
                     name = f"frame_{i:0{digits}d}"
                     if "png" in formats:
@@ -848,11 +881,18 @@ def render(args, console):
                         io.write_image(staging / f"{name}.exr", linear[k], fps=fps)
                     if "pfm" in formats:
                         io.write_image(staging / f"{name}.pfm", linear[k])
-                    if i in contact_idx:
-                        contact.append(coded[k].copy())  # not a view holding the chunk
-                send_video(coded)
-                tables.append(table)
+                contact.extend(coded[k].copy() for k in shown)  # not views holding the chunk
+                if "mp4" in formats:
+                    send_video(coded)
                 progress.advance(task, len(idx))
+
+            key = jax.random.key(args.seed or 0)
+            budget = args.memory or pipeline.MEMORY_BUDGET
+            stream = pipeline.chunks(op, params, source, args.chunk, key, budget=budget)
+            with contextlib.closing(stream), pipeline.behind(write) as submit:
+                for idx, linear, table in stream:
+                    submit((idx, linear))
+                    tables.append(table)
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)

@@ -1,6 +1,8 @@
 """Display encodings: from display-relative linear values in [0, 1] to encoded
 signals in [0, 1], and from those to 8-bit code values."""
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -30,8 +32,26 @@ ENCODINGS = {"srgb": encode_srgb, "gamma": encode_gamma, "linear": lambda v: jnp
 
 def to_uint8(v):
     """Quantise encoded values in [0, 1] to 8-bit code values: the nearest,
-    ties to even (``jnp.round``)."""
-    return np.asarray(jnp.round(jnp.clip(v, 0.0, 1.0) * 255.0)).astype(np.uint8)
+    ties to even (``jnp.round``); a numpy array."""
+    return np.asarray(_codes(jnp.asarray(v)))
+
+
+@jax.jit
+def _codes(v):
+    return jnp.round(jnp.clip(v, 0.0, 1.0) * 255.0).astype(jnp.uint8)
+
+
+@partial(jax.jit, static_argnames="encoding")
+def _encoded_codes(v, encoding):
+    return _codes(ENCODINGS[encoding](v))
+
+
+def encode_uint8(v, encoding="srgb"):
+    """8-bit code values of linear display values ``v`` in [0, 1] encoded
+    with ``encoding`` (a name of :data:`ENCODINGS`): :func:`to_uint8` of
+    the encoding, compiled as one pass over the frames (op by op, each step
+    wrote a whole chunk of frames to memory); a numpy array."""
+    return np.asarray(_encoded_codes(jnp.asarray(v), encoding))
 
 
 def dither(J, key, levels=255):

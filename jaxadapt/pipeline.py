@@ -1,13 +1,22 @@
-"""Sequences of any length through an operator, a chunk of frames at a time.
+"""Sequences of any length through an operator, streamed in bounded memory.
 
 A :class:`Source` produces calibrated frames (cd/m2) on demand, from a
 built-in scene or from HDR files, so that a long sequence is never held in
 memory whole. :func:`chunks` runs an operator over it: each chunk is one
 call of the operator's ``run``, started from the state the previous chunk
-ended in, so the result equals one call over the whole sequence.
+ended in, so the result equals one call over the whole sequence. The next
+chunk is read in a background thread while the operator computes
+(:func:`ahead`), and :func:`behind` writes a chunk's results in another
+while the next is computed, so that a render runs at the speed of its
+slowest stage rather than the sum of the three. The chunk's length follows
+from a memory budget and the frame size (:func:`chunk_size`), so memory
+does not grow with the sequence's length.
 """
 
+import contextlib
 import os
+import queue
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -23,6 +32,28 @@ from jaxadapt.spatial import check_value, check_whole
 FILE_PIXELS_PER_DEGREE = 30.0
 #: Frame rate of HDR files whose first file's header gives none, frames per second.
 FILE_FPS = 30.0
+
+
+#: Bytes of frames that :func:`chunks` holds at once by default, in all its
+#: stages together (:func:`chunk_size`): 1 GiB.
+MEMORY_BUDGET = 2**30
+#: Chunks' worth of float32 frames alive at once while streaming: the chunk
+#: read ahead, the chunk computed (its frames, the operator's display frames
+#: and temporaries, and their copy on the host) and the chunk written
+#: behind. Measured: ``benchmarks/bench_render.py`` records peak memory.
+CHUNK_COPIES = 6
+#: The longest chunk, frames: beyond it a call's fixed cost is already small.
+MAX_CHUNK = 32
+
+
+def chunk_size(shape, budget=MEMORY_BUDGET):
+    """Frames per chunk for frames of ``shape`` ``(H, W)`` within ``budget``
+    bytes: ``budget // (CHUNK_COPIES * H * W * 3 * 4)``, from 1 to
+    :data:`MAX_CHUNK`. A 1920x1080 frame takes 24.9 MB, so the default
+    budget gives 7 frames a chunk; a 3840x2160 frame 99.5 MB, 1 frame."""
+    budget = check_whole("budget", budget, least=1, unit="bytes")
+    H, W = shape
+    return int(np.clip(budget // (CHUNK_COPIES * H * W * 3 * 4), 1, MAX_CHUNK))
 
 
 class Source(NamedTuple):
@@ -44,6 +75,9 @@ class Source(NamedTuple):
         None to adapt to the first frame.
     pixels_per_degree : float
         Resolution of the frames at the viewer's eye.
+    shape : tuple or None
+        Frame size ``(H, W)``, pixels; None where unknown until a frame is
+        made (:func:`frame_shape`).
     """
 
     name: str
@@ -54,6 +88,15 @@ class Source(NamedTuple):
     goal: str
     adaptation: float | None
     pixels_per_degree: float
+    shape: tuple | None = None
+
+
+def frame_shape(source):
+    """The frame size ``(H, W)`` of ``source``: its ``shape``, else that of
+    its first frame."""
+    if source.shape is not None:
+        return tuple(source.shape)
+    return source.frames(np.arange(1)).shape[1:3]
 
 
 def _check_multiplier(multiplier):
@@ -73,6 +116,8 @@ def _check_multiplier(multiplier):
 def _calibrated(frames, multiplier, name):
     """``frames * multiplier`` in float32; a ValueError naming ``name`` (the
     frames' source) where that overflows."""
+    if multiplier == 1:
+        return frames  # (frames * 1 is frames: a pass over memory saved)
     with np.errstate(over="ignore"):
         calibrated = frames * np.float32(multiplier)
     if not np.all(np.isfinite(calibrated)):
@@ -171,6 +216,7 @@ def from_files(paths, fps=None, multiplier=1.0):
         "log_average",
         None,
         FILE_PIXELS_PER_DEGREE,
+        first.shape[:2],
     )
 
 
@@ -189,8 +235,9 @@ def _check_values(frame, path):
     negative values are common in real EXRs (a renderer's filter ringing, a
     camera's black level); ``--clamp:min=0`` clips them, and ``--fixnan
     black`` sets NaN and infinite pixels to black."""
-    bad = ~(np.isfinite(frame) & (frame >= 0))  # one pass for a good frame
-    if bad.any():
+    # Two reductions for a good frame (NaN makes the least NaN, -inf it too).
+    if not (frame.min() >= 0 and frame.max() < np.inf):
+        bad = ~(np.isfinite(frame) & (frame >= 0))
         kinds = {
             "negative": (frame < 0) & np.isfinite(frame),  # -inf is counted as infinite
             "NaN": np.isnan(frame),
@@ -211,8 +258,11 @@ def _check_values(frame, path):
         )
 
 
-def chunks(op, params, source, size=32, key=None):
-    """Run operator module ``op`` over ``source``, ``size`` frames per call.
+def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
+    """Run operator module ``op`` over ``source``, a chunk of frames per call.
+
+    The next chunk's frames are read (and put on the device) in a
+    background thread while the operator computes this one (:func:`ahead`).
 
     Parameters
     ----------
@@ -221,11 +271,14 @@ def chunks(op, params, source, size=32, key=None):
         (``init``, ``run`` and ``diagnostics_table``).
     params : op.Params
     source : Source
-    size : int
-        Frames per call. Every chunk but the last has this length, so the
+    size : int, optional
+        Frames per call; by default :func:`chunk_size` of the frames and
+        ``budget``. Every chunk but the last has this length, so the
         operator compiles at most twice.
     key : PRNG key, optional
         Key of the sequence, for the stochastic operators.
+    budget : int
+        Bytes of frames held at once, for the default ``size``.
 
     Yields
     ------
@@ -236,24 +289,129 @@ def chunks(op, params, source, size=32, key=None):
     Raises
     ------
     ValueError
-        ``size`` is not a whole number of frames, at least 1.
+        ``size`` or ``budget`` is not a whole number, at least 1.
     FloatingPointError
         A display frame holds a non-finite value (:func:`_finite`).
     """
+    if size is None:
+        size = chunk_size(frame_shape(source), budget)
     size = check_whole("size", size, least=1, unit="frames")
     T = len(source.times)
-    for start in range(0, T, size):
-        idx = np.arange(start, min(start + size, T))
-        frames = jnp.asarray(source.frames(idx))
-        gaze = jnp.asarray(source.gaze(idx), jnp.float32)
-        if start == 0:  # (a state of None is that of an operator without one)
-            state = op.init(params, frames[0], gaze=gaze[0], key=key, adaptation=source.adaptation)
-        dt = jnp.asarray(source.dt[idx], jnp.float32)
-        out, diag = op.run(params, frames, dt, gaze=gaze, state=state)
-        state = diag.final_state
-        table = op.diagnostics_table(diag)
-        table["t"] = source.times[idx]
-        yield idx, _finite(np.asarray(out), idx, op), table
+
+    def read():
+        for start in range(0, T, size):
+            idx = np.arange(start, min(start + size, T))
+            frames = jnp.asarray(source.frames(idx))
+            yield idx, frames, jnp.asarray(source.gaze(idx), jnp.float32)
+
+    with contextlib.closing(ahead(read())) as frames_ahead:
+        for idx, frames, gaze in frames_ahead:
+            if idx[0] == 0:  # (a state of None is that of an operator without one)
+                state = op.init(
+                    params, frames[0], gaze=gaze[0], key=key, adaptation=source.adaptation
+                )
+            dt = jnp.asarray(source.dt[idx], jnp.float32)
+            out, diag = op.run(params, frames, dt, gaze=gaze, state=state)
+            del frames  # not held while the chunk is written
+            state = diag.final_state
+            table = op.diagnostics_table(diag)
+            table["t"] = source.times[idx]
+            yield idx, _finite(np.asarray(out), idx, op), table
+
+
+#: What a stage's queue holds after its last item.
+_END = object()
+
+
+def _put(q, item, stop):
+    """Put ``item`` in ``q``, waiting for room unless ``stop`` is set
+    (then False)."""
+    while not stop.is_set():
+        try:
+            q.put(item, timeout=0.05)
+            return True
+        except queue.Full:
+            pass
+    return False
+
+
+def ahead(items, depth=1):
+    """Iterate over ``items`` (an iterator), computed in a background thread
+    at most ``depth`` items ahead of the caller.
+
+    An error in the thread is raised here, at the item it stopped at. When
+    the caller stops (its loop ends early, an error, ``close()``), the
+    thread is told to stop, finishes the item it is computing and is
+    joined: no thread outlives the iteration.
+    """
+    q, stop = queue.Queue(maxsize=depth), threading.Event()
+
+    def work():
+        try:
+            for item in items:
+                if not _put(q, (item, None), stop):
+                    return
+        except BaseException as error:  # raised in the caller
+            _put(q, (None, error), stop)
+            return
+        _put(q, (_END, None), stop)
+
+    thread = threading.Thread(target=work, name="jaxadapt-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, error = q.get()
+            if error is not None:
+                raise error
+            if item is _END:
+                return
+            box, item = [item], None
+            yield box.pop()  # not held here while the caller works on it
+    finally:
+        stop.set()
+        thread.join()
+
+
+@contextlib.contextmanager
+def behind(consume, depth=1):
+    """Yield ``submit(item)``, which hands ``item`` to ``consume(item)`` in
+    a background thread, at most ``depth`` items behind the caller.
+
+    ``submit`` waits while ``depth`` items wait already (memory stays
+    bounded), and raises the error of an earlier ``consume``, if any. When
+    the block ends, the thread consumes what was submitted and is joined;
+    then its error, if any, is raised. When the block raises, what was not
+    consumed yet is dropped, the thread is joined and the block's error
+    goes on.
+    """
+    q, errors, drop = queue.Queue(maxsize=depth), [], threading.Event()
+
+    def work():
+        while (item := q.get()) is not _END:
+            if errors or drop.is_set():
+                continue  # drained, so that submit and the end never wait forever
+            try:
+                consume(item)
+            except BaseException as error:  # raised in the caller
+                errors.append(error)
+
+    def submit(item):
+        if errors:
+            raise errors[0]
+        q.put(item)
+
+    thread = threading.Thread(target=work, name="jaxadapt-write-behind", daemon=True)
+    thread.start()
+    try:
+        yield submit
+    except BaseException:
+        drop.set()
+        raise
+    finally:
+        q.put(_END)
+        thread.join()
+    if errors:
+        raise errors[0]
 
 
 def _finite(out, idx, op):
@@ -275,7 +433,7 @@ def concatenate(tables):
     return {name: np.concatenate([t[name] for t in tables]) for name in tables[0]}
 
 
-def collect(op, params, source, keep, size=32, key=None):
+def collect(op, params, source, keep, size=None, key=None):
     """Run ``op`` over ``source``; keep the display frames at indices ``keep``.
 
     Returns ``({index: frame (H, W, 3)}, table)``: the kept frames and the

@@ -8,6 +8,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -522,10 +523,10 @@ def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
     args = ["render", "--scene", "title-step", *SMALL, "--multiplier", "1e38"]
     status, err = _run(capsys, *args, "--out", str(tmp_path / "o"))
     _assert_one_line_error(status, err, "scene title-step", "multiplier")
-    # A value check compiled into an operator raises an error whose text
-    # starts with the stack; the command line prints its message.
+    # A value check compiled into an operator called inside jit raises an
+    # error whose text starts with the stack; the command line prints its message.
     with pytest.raises(eqx.EquinoxRuntimeError) as error:
-        op.run(op.Params(), jnp.full((2, 4, 4, 3), jnp.inf), 0.1)
+        eqx.filter_jit(lambda f: op.run(op.Params(), f, 0.1)[0])(jnp.full((2, 4, 4, 3), jnp.inf))
     assert _message(error.value) == "frames: expected finite, non-negative luminance (cd/m2)"
 
 
@@ -1228,3 +1229,73 @@ def test_size_help_gives_each_scenes_default_size(capsys):
     for name, scene in SCENES.items():
         frame = pipeline.from_scene(scene()).frames(np.arange(1))[0]
         assert f"{frame.shape[1]}x{frame.shape[0]} {name}" in said, name
+
+
+def _stream_threads():
+    return [t for t in threading.enumerate() if t.name.startswith("jaxadapt-")]
+
+
+def test_a_streamed_render_gives_the_frames_and_diagnostics_of_a_plain_loop(tmp_path, capsys):
+    # Reading ahead and writing behind in threads change nothing: the frames
+    # and diagnostics are those of the operator called chunk after chunk.
+    frames = _gradient_frames(7)
+    paths = []
+    for i, frame in enumerate(frames):
+        paths.append(tmp_path / f"in_{i}.pfm")
+        io.write_image(paths[-1], frame)
+    out = tmp_path / "out"
+    status, err = _run(capsys, "render", *map(str, paths), "--format", "pfm", "--chunk", "3",
+                       "--out", str(out))
+    assert status == 0, err
+    params, state, expected, tables = op.Params(), None, [], []
+    for start in range(0, 7, 3):
+        chunk = jnp.asarray(frames[start : start + 3])
+        state = op.init(params, chunk[0]) if state is None else state
+        shown, diag = op.run(params, chunk, jnp.full(len(chunk), 1 / 30, jnp.float32), state=state)
+        state = diag.final_state
+        expected.append(np.asarray(shown))
+        tables.append(op.diagnostics_table(diag))
+    expected = np.concatenate(expected)
+    for i in range(7):
+        np.testing.assert_array_equal(io.read_hdr(out / f"frame_{i:05d}.pfm"), expected[i])
+    with open(out / "diagnostics.csv") as f:
+        rows = list(csv.DictReader(f))
+    column = np.concatenate([t["G_cone"] for t in tables])
+    assert [row["G_cone"] for row in rows] == [f"{v:.6g}" for v in column]
+    assert _stream_threads() == []
+
+
+def _gradient_frames(T, H=12, W=20):
+    rng = np.random.default_rng(1)
+    level = np.geomspace(0.01, 1e4, T)[:, None, None, None]
+    return (rng.uniform(0.5, 2.0, (T, H, W, 3)) * level).astype(np.float32)
+
+
+@pytest.mark.parametrize("stage", ["read", "write"])
+def test_an_error_mid_stream_stops_the_render_and_joins_its_threads(tmp_path, capsys,
+                                                                    monkeypatch, stage):
+    # A bad frame read ahead, or a frame the writer cannot write, in the
+    # middle of a sequence: one line, exit 2, no file in --out and no
+    # thread left running.
+    frames = _gradient_frames(9)
+    if stage == "read":
+        frames[5, 2, 3, 1] = -1.0
+    paths = []
+    for i, frame in enumerate(frames):
+        paths.append(tmp_path / f"in_{i}.pfm")
+        io.write_image(paths[-1], frame)
+    if stage == "write":
+        write_image = io.write_image
+
+        def failing(path, pixels, *args, **kwargs):
+            if Path(path).name == "frame_00005.pfm":
+                raise OSError(f"{path}: cannot write (a broken disk)")
+            return write_image(path, pixels, *args, **kwargs)
+
+        monkeypatch.setattr(io, "write_image", failing)
+    out = tmp_path / "out"
+    status, err = _run(capsys, "render", *map(str, paths), "--format", "pfm", "--chunk", "2",
+                       "--out", str(out))
+    _assert_one_line_error(status, err, "in_5.pfm" if stage == "read" else "frame_00005.pfm")
+    assert not out.exists()
+    assert _stream_threads() == []

@@ -1,5 +1,7 @@
 """A sequence through an operator a chunk at a time (:mod:`jaxadapt.pipeline`)."""
 
+import os
+import threading
 import types
 import warnings
 
@@ -136,3 +138,70 @@ def test_one_path_is_one_still_image(tmp_path, monkeypatch):
         source = pipeline.from_files(path)
         assert len(source.times) == 1
         np.testing.assert_array_equal(source.frames(np.arange(1)), np.full((1, 2, 3, 3), 7.0))
+
+
+def _resident_bytes():
+    """This process's resident memory now (Linux), bytes; None elsewhere."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return None
+
+
+def test_memory_stays_flat_over_a_long_sequence():
+    # 1,200 frames of 128x128 (240 MB of input, as much of display frames)
+    # streamed 4 at a time: what is resident after 50 chunks is what is
+    # resident at the end, and no frames are left alive in JAX.
+    T, H, W = 1200, 128, 128
+    base = np.random.default_rng(0).uniform(1.0, 100.0, (H, W, 3)).astype(np.float32)
+    source = pipeline.Source(
+        "long",
+        np.arange(T) / 30.0,
+        np.full(T, 1 / 30.0),
+        lambda idx: np.stack([base * (1 + (i % 50)) for i in idx]),
+        lambda idx: np.tile([(W - 1) / 2, (H - 1) / 2], (len(idx), 1)),
+        "log_average",
+        None,
+        30.0,
+    )
+    resident, arrays = [], []
+    for n, _ in enumerate(pipeline.chunks(pattanaik2000, pattanaik2000.Params(), source, 4)):
+        if n in (50, T // 4 - 1):
+            resident.append(_resident_bytes())
+            arrays.append(len(jax.live_arrays()))
+    assert arrays[1] <= arrays[0]
+    if resident[0] is not None:
+        assert resident[1] - resident[0] < 40e6  # kept display frames alone: 200 MB
+
+
+def test_a_stage_that_fails_stops_the_stream_and_its_thread():
+    def frames(idx):
+        if idx[0] >= 6:
+            raise ValueError("frame 6: unreadable")
+        return np.ones((len(idx), 4, 4, 3), np.float32)
+
+    source = _step_source(T=10)._replace(frames=frames)
+    with pytest.raises(ValueError, match="^frame 6: unreadable"):
+        for _ in pipeline.chunks(pattanaik2000, pattanaik2000.Params(), source, 3):
+            pass
+    consumed = []
+
+    def consume(item):
+        if item == 3:
+            raise OSError("disk full")
+        consumed.append(item)
+
+    with pytest.raises(OSError, match="disk full"):
+        with pipeline.behind(consume) as submit:
+            for item in range(20):
+                submit(item)
+    assert consumed == [0, 1, 2]  # nothing after the failure
+    assert not [t for t in threading.enumerate() if t.name.startswith("jaxadapt-")]
+
+
+def test_chunk_size_follows_the_budget_and_the_frame_size():
+    assert pipeline.chunk_size((1080, 1920)) == 7
+    assert pipeline.chunk_size((2160, 3840)) == 1
+    assert pipeline.chunk_size((10, 10)) == pipeline.MAX_CHUNK
+    assert pipeline.chunk_size((1080, 1920), budget=2**32) == 28
