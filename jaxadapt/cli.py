@@ -536,6 +536,7 @@ def _staged(out, console, replaces=None, keep=()):
     try:
         with _signals_deferred():  # a signal as it is made is raised where it is removed
             staging = _staging_folder(out)
+            _remove_dead_staging(out)
         left = sorted(p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging)
         if left:
             console.print(
@@ -565,13 +566,43 @@ def _staged(out, console, replaces=None, keep=()):
 
 
 def _staging_folder(out):
-    """Make ``out`` (and its parents) and a new staging folder in it; a
-    UsageError naming ``out`` if it cannot be written to."""
+    """Make ``out`` (and its parents) and a new staging folder in it, named
+    after this process (:func:`_owner`); a UsageError naming ``out`` if it
+    cannot be written to."""
     try:
         out.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
+        return Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{_owner(os.getpid())}-", dir=out))
     except OSError as e:
         raise UsageError(f"--out: cannot write to {out} ({e.strerror or e})") from None
+
+
+def _owner(pid):
+    """``PID.START`` of a running process, its id and the time it started in
+    clock ticks since boot (Linux's ``/proc/PID/stat``; ``PID.0`` where there
+    is none), so that a later process with the same id is told apart; None
+    if no process has that id."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return f"{pid}.{stat.rpartition(')')[2].split()[19]}"
+    except (OSError, IndexError):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except OSError:
+            pass  # it exists, owned by another user
+        return f"{pid}.0"
+
+
+def _remove_dead_staging(out):
+    """Remove the staging folders in ``out`` whose run was killed before it
+    could clean up (SIGKILL, the OOM killer, a power loss): those whose name
+    says a process (:func:`_owner`) that no longer runs. Others, of runs
+    still going or of another naming, are left alone."""
+    for folder in out.glob(f"{STAGING_PREFIX}*"):
+        match = re.fullmatch(rf"{re.escape(STAGING_PREFIX)}(\d+)\.(\d+)-\w+", folder.name)
+        if match and folder.is_dir() and _owner(int(match[1])) != f"{match[1]}.{match[2]}":
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 def _out_of_space(error, out):

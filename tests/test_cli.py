@@ -378,6 +378,31 @@ def test_a_signal_as_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeyp
         assert not (tmp_path / "new").exists()
 
 
+def test_staging_folders_of_killed_runs_are_removed_by_the_next(tmp_path, capsys):
+    # A run killed outright (SIGKILL, the OOM killer) leaves its staging
+    # folder; the next run into --out removes it, and only such folders.
+    out = tmp_path / "out"
+    out.mkdir()
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    killed = cli._owner(child.pid)
+    child.kill()
+    child.wait()
+    running = cli._owner(os.getpid())  # this process: a run still going
+    names = {
+        f".jaxadapt-{killed}-abc123": False,
+        f".jaxadapt-{os.getpid()}.1-xyz789": False,  # its id, another start: gone
+        f".jaxadapt-{running}-q1w2e3": True,
+        ".jaxadapt-older": True,  # not named by a process: only named in a warning
+    }
+    for name in names:
+        (out / name).mkdir()
+    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    assert status == 0
+    left = sorted(p.name for p in out.glob(".jaxadapt-*") if p.is_dir())
+    assert left == sorted(name for name, kept in names.items() if kept)
+    assert ".jaxadapt-older" in err and killed not in err
+
+
 def test_staging_folders_left_by_killed_runs_are_named(tmp_path, capsys):
     out = tmp_path / "out"
     (out / ".jaxadapt-killed").mkdir(parents=True)
