@@ -902,8 +902,8 @@ def render(args, console):
                 coded = None
                 if {"png", "mp4"} & set(formats):
                     coded = display.encode_uint8(linear, code_as)
-                elif shown:  # only the contact sheet's frames, one by one (one shape)
-                    coded = {k: display.encode_uint8(linear[k], code_as) for k in shown}
+                for k in shown:  # shrunk in linear light, then encoded
+                    contact.append(display.encode_uint8(figures.shrink(linear[k]), code_as))
                 for k, i in enumerate(idx):
                     name = f"frame_{i:0{digits}d}"
                     if "png" in formats:
@@ -912,7 +912,6 @@ def render(args, console):
                         io.write_image(staging / f"{name}.exr", linear[k], fps=fps)
                     if "pfm" in formats:
                         io.write_image(staging / f"{name}.pfm", linear[k])
-                contact.extend(coded[k].copy() for k in shown)  # not views holding the chunk
                 if "mp4" in formats:
                     send_video(coded)
                 progress.advance(task, len(idx))

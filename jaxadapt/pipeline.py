@@ -323,38 +323,28 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
 _END = object()
 
 
-def _put(q, item, stop):
-    """Put ``item`` in ``q``, waiting for room unless ``stop`` is set
-    (then False)."""
-    while not stop.is_set():
-        try:
-            q.put(item, timeout=0.05)
-            return True
-        except queue.Full:
-            pass
-    return False
-
-
 def ahead(items, depth=1):
     """Iterate over ``items`` (an iterator), computed in a background thread
-    at most ``depth`` items ahead of the caller.
+    at most ``depth`` items ahead of the caller: the thread starts on the
+    next item when the caller takes one, so that one item is computed while
+    the caller works on the one before, and no more are held.
 
     An error in the thread is raised here, at the item it stopped at. When
     the caller stops (its loop ends early, an error, ``close()``), the
     thread is told to stop, finishes the item it is computing and is
     joined: no thread outlives the iteration.
     """
-    q, stop = queue.Queue(maxsize=depth), threading.Event()
+    q, room, stop = queue.Queue(), threading.Semaphore(depth), threading.Event()
 
     def work():
         try:
-            for item in items:
-                if not _put(q, (item, None), stop):
+            while _acquire(room, stop):
+                item = next(items, _END)
+                q.put((item, None))
+                if item is _END:
                     return
         except BaseException as error:  # raised in the caller
-            _put(q, (None, error), stop)
-            return
-        _put(q, (_END, None), stop)
+            q.put((None, error))
 
     thread = threading.Thread(target=work, name="jaxadapt-read-ahead", daemon=True)
     thread.start()
@@ -365,6 +355,7 @@ def ahead(items, depth=1):
                 raise error
             if item is _END:
                 return
+            room.release()  # the thread goes on to the next item
             box, item = [item], None
             yield box.pop()  # not held here while the caller works on it
     finally:
@@ -372,32 +363,42 @@ def ahead(items, depth=1):
         thread.join()
 
 
+def _acquire(semaphore, stop):
+    """Acquire ``semaphore`` unless ``stop`` is set first (then False)."""
+    while not stop.is_set():
+        if semaphore.acquire(timeout=0.05):
+            return True
+    return False
+
+
 @contextlib.contextmanager
 def behind(consume, depth=1):
     """Yield ``submit(item)``, which hands ``item`` to ``consume(item)`` in
     a background thread, at most ``depth`` items behind the caller.
 
-    ``submit`` waits while ``depth`` items wait already (memory stays
-    bounded), and raises the error of an earlier ``consume``, if any. When
-    the block ends, the thread consumes what was submitted and is joined;
-    then its error, if any, is raised. When the block raises, what was not
-    consumed yet is dropped, the thread is joined and the block's error
-    goes on.
+    ``submit`` waits while ``depth`` items are not consumed yet (memory
+    stays bounded), and raises the error of an earlier ``consume``, if any.
+    When the block ends, the thread consumes what was submitted and is
+    joined; then its error, if any, is raised. When the block raises, what
+    was not consumed yet is dropped, the thread is joined and the block's
+    error goes on.
     """
-    q, errors, drop = queue.Queue(maxsize=depth), [], threading.Event()
+    q, slots, errors, drop = queue.Queue(), threading.Semaphore(depth), [], threading.Event()
 
     def work():
         while (item := q.get()) is not _END:
-            if errors or drop.is_set():
-                continue  # drained, so that submit and the end never wait forever
-            try:
-                consume(item)
-            except BaseException as error:  # raised in the caller
-                errors.append(error)
+            if not (errors or drop.is_set()):
+                try:
+                    consume(item)
+                except BaseException as error:  # raised in the caller
+                    errors.append(error)
+            item = None
+            slots.release()
 
     def submit(item):
         if errors:
             raise errors[0]
+        slots.acquire()
         q.put(item)
 
     thread = threading.Thread(target=work, name="jaxadapt-write-behind", daemon=True)

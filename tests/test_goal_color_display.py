@@ -214,3 +214,14 @@ def test_plane_sum_is_the_sum_over_the_image_axes():
     np.testing.assert_allclose(spatial.plane_sum(jnp.asarray(x)), x.sum(axis=(-2, -1)), rtol=1e-13)
     grad = jax.grad(lambda a: spatial.plane_sum(a).sum())(jnp.asarray(x))
     np.testing.assert_array_equal(grad, np.ones_like(x))
+
+
+def test_a_contact_frame_is_shrunk_by_whole_boxes_in_linear_light():
+    from jaxadapt import figures
+
+    frame = np.random.default_rng(0).uniform(0, 1, (10, 2000, 3)).astype(np.float32)
+    small = figures.shrink(frame, width=960)  # 3 x 3 boxes: 666 wide, 3 rows
+    assert small.shape == (3, 666, 3)
+    np.testing.assert_allclose(small[1, 5], frame[3:6, 15:18].mean(axis=(0, 1)), rtol=1e-6)
+    narrow = frame[:, :960]
+    np.testing.assert_array_equal(figures.shrink(narrow, width=960), narrow)
