@@ -85,7 +85,7 @@ def shrink(frame, width=CONTACT_WIDTH):
     narrow enough. For the contact sheet, where twelve full 3840x2160 frames
     held 300 MB until the end and made a 15,000-pixel-wide PNG. Given
     linear display values, the means are those of the light."""
-    f = -(-frame.shape[1] // width)
+    f = min(-(-frame.shape[1] // width), frame.shape[0])  # at least one row of boxes
     if f == 1:
         return np.array(frame)
     H, W = frame.shape[0] // f * f, frame.shape[1] // f * f
