@@ -912,8 +912,7 @@ def render(args, console):
                         io.write_image(staging / f"{name}.exr", linear[k], fps=fps)
                     if "pfm" in formats:
                         io.write_image(staging / f"{name}.pfm", linear[k])
-                if "mp4" in formats:
-                    send_video(coded)
+                send_video(coded)  # (a no-op without mp4)
                 progress.advance(task, len(idx))
 
             key = jax.random.key(args.seed or 0)
