@@ -1269,8 +1269,9 @@ def test_a_streamed_render_gives_the_frames_and_diagnostics_of_a_plain_loop(tmp_
         paths.append(tmp_path / f"in_{i}.pfm")
         io.write_image(paths[-1], frame)
     out = tmp_path / "out"
-    status, err = _run(capsys, "render", *map(str, paths), "--format", "pfm", "--chunk", "3",
-                       "--out", str(out))
+    status, err = _run(
+        capsys, "render", *map(str, paths), "--format", "pfm", "--chunk", "3", "--out", str(out)
+    )
     assert status == 0, err
     params, state, expected, tables = op.Params(), None, [], []
     for start in range(0, 7, 3):
@@ -1297,8 +1298,9 @@ def _gradient_frames(T, H=12, W=20):
 
 
 @pytest.mark.parametrize("stage", ["read", "write"])
-def test_an_error_mid_stream_stops_the_render_and_joins_its_threads(tmp_path, capsys,
-                                                                    monkeypatch, stage):
+def test_an_error_mid_stream_stops_the_render_and_joins_its_threads(
+    tmp_path, capsys, monkeypatch, stage
+):
     # A bad frame read ahead, or a frame the writer cannot write, in the
     # middle of a sequence: one line, exit 2, no file in --out and no
     # thread left running.
@@ -1319,9 +1321,9 @@ def test_an_error_mid_stream_stops_the_render_and_joins_its_threads(tmp_path, ca
 
         monkeypatch.setattr(io, "write_image", failing)
     out = tmp_path / "out"
-    status, err = _run(capsys, "render", *map(str, paths), "--format", "pfm", "--chunk", "2",
-                       "--out", str(out))
+    status, err = _run(
+        capsys, "render", *map(str, paths), "--format", "pfm", "--chunk", "2", "--out", str(out)
+    )
     _assert_one_line_error(status, err, "in_5.pfm" if stage == "read" else "frame_00005.pfm")
     assert not out.exists()
     assert _stream_threads() == []
-
