@@ -1,16 +1,31 @@
-"""Colour constants, derived once at import from colour-science, and luminances.
+"""Colour constants and luminances.
 
 Frames are linear ITU-R BT.709 RGB in absolute units: each channel in cd/m2,
 so that the photopic luminance ``Y`` of a pixel is in cd/m2.
+
+The constants are colour-science's values written out to full float64
+precision: importing colour-science takes about 2 s (it imports matplotlib,
+SciPy and pandas), longer than a short render's work, and every command and
+library import paid it. The tests derive each one from colour-science again
+and require equality to 1e-15.
 """
 
-import colour
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-#: Linear BT.709 RGB to CIE XYZ (D65), from colour-science.
-RGB709_TO_XYZ = np.asarray(colour.RGB_COLOURSPACES["ITU-R BT.709"].matrix_RGB_to_XYZ)
+#: Chromaticities of ITU-R BT.709 (x, y of red, green, blue and the D65 white).
+BT709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+#: Linear BT.709 RGB to CIE XYZ (D65): colour-science's
+#: ``RGB_COLOURSPACES["ITU-R BT.709"].matrix_RGB_to_XYZ``.
+RGB709_TO_XYZ = np.array(
+    [
+        [0.41239079926595934, 0.35758433938387796, 0.1804807884018343],
+        [0.2126390058715103, 0.7151686787677559, 0.07219231536073371],
+        [0.01933081871559182, 0.11919477979462595, 0.9505321522496606],
+    ]
+)
 
 #: Photopic luminance weights: the Y row of :data:`RGB709_TO_XYZ`
 #: (0.2126, 0.7152, 0.0722).
@@ -29,34 +44,26 @@ W_PHOTOPIC = RGB709_TO_XYZ[1]
 #: colour-science's CIE 1951 and 1931 tables: see :data:`SP_RATIO_D65`.)
 W_SCOTOPIC = np.array([0.0, 0.8451, 0.1459]) / (0.8451 + 0.1459)
 
+#: Scotopic-to-photopic luminance ratio of CIE D65 in absolute units:
+#: ``1700 sum(D65 V') / (683 sum(D65 V))`` over 380-780 nm in 1 nm steps,
+#: with colour-science's D65, CIE 1951 scotopic and CIE 1924 photopic tables.
+SP_RATIO_D65 = 2.464501664248087
 
-def _sp_ratio_d65():
-    """Scotopic-to-photopic luminance ratio of CIE D65 (1700 and 683 lm/W)."""
-    shape = colour.SpectralShape(380, 780, 1)
-    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape).values
-    v_scotopic = (
-        colour.colorimetry.SDS_LEFS_SCOTOPIC["CIE 1951 Scotopic Standard Observer"]
-        .copy()
-        .align(shape)
-        .values
-    )
-    v_photopic = (
-        colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"]
-        .copy()
-        .align(shape)
-        .values
-    )
-    return 1700.0 * np.dot(d65, v_scotopic) / (683.0 * np.dot(d65, v_photopic))
-
-
-#: Scotopic-to-photopic luminance ratio of D65 in absolute units (about 2.46).
-SP_RATIO_D65 = float(_sp_ratio_d65())
+#: CIE XYZ to Hunt-Pointer-Estevez LMS (colour-science's
+#: ``appearance.hunt.MATRIX_XYZ_TO_HPE``).
+XYZ_TO_HPE = np.array(
+    [
+        [0.38971, 0.68898, -0.07868],
+        [-0.22981, 1.18340, 0.04641],
+        [0.0, 0.0, 1.0],
+    ]
+)
 
 
 def _lms_matrix():
     """BT.709 RGB to Hunt-Pointer-Estevez LMS, rows scaled so that white
     ``(1, 1, 1)`` gives ``(1, 1, 1)``: cone excitations in cd/m2 of white."""
-    M = np.asarray(colour.appearance.hunt.MATRIX_XYZ_TO_HPE) @ RGB709_TO_XYZ
+    M = XYZ_TO_HPE @ RGB709_TO_XYZ
     return M / M.sum(axis=1, keepdims=True)
 
 

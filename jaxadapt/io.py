@@ -16,17 +16,14 @@ from fractions import Fraction
 from pathlib import Path
 from typing import NamedTuple
 
-import colour
 import numpy as np
 import OpenImageIO as oiio
+
+from jaxadapt.color import BT709_CHROMATICITIES
 
 _FLOAT_FORMATS = ("float", "half", "double")
 #: The largest term of a header's rational (OpenEXR's ``Rational``: int, unsigned int).
 _INT32_MAX = 2**31 - 1
-#: The colour space of jaxadapt's frames: linear BT.709 primaries, D65 white.
-_BT709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
-#: Its chromaticities as files list them: red, green, blue and white x, y.
-BT709_CHROMATICITIES = (*np.ravel(_BT709.primaries), *_BT709.whitepoint)
 
 
 def read_hdr(path):
@@ -291,8 +288,11 @@ def bt709_matrix(chromaticities, path):
             f"white (8 numbers: x, y of red, green, blue, white; white y > 0), got "
             f"{', '.join(f'{v:g}' for v in xy)}"
         )
+    import colour  # not at import: it takes seconds (jaxadapt.color)
+
     space = colour.RGB_Colourspace(str(path), xy[:6].reshape(3, 2), xy[6:])
-    return np.asarray(colour.matrix_RGB_to_RGB(space, _BT709, "Bradford"))
+    bt709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
+    return np.asarray(colour.matrix_RGB_to_RGB(space, bt709, "Bradford"))
 
 
 def display_window(pixels, spec):

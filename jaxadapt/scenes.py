@@ -18,7 +18,6 @@ import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
-import colour
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -111,6 +110,8 @@ def colorchecker_rgb(illuminant="D65"):
     numpy array, shape (4, 6, 3)
         Rows and columns as on the chart.
     """
+    import colour  # not at import: it takes seconds (jaxadapt.color)
+
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
     patches = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"].values()

@@ -1,5 +1,7 @@
 """Adaptation goals, colour constants and display encodings."""
 
+import subprocess
+import sys
 from functools import partial
 
 import colour
@@ -62,9 +64,37 @@ def test_foveal_goal_sees_what_the_gaze_sees():
 
 
 def test_photopic_weights_come_from_colour_science():
-    M = colour.RGB_COLOURSPACES["ITU-R BT.709"].matrix_RGB_to_XYZ
-    np.testing.assert_allclose(color.W_PHOTOPIC, M[1])
+    bt709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
+    np.testing.assert_allclose(color.RGB709_TO_XYZ, bt709.matrix_RGB_to_XYZ, rtol=1e-15)
+    np.testing.assert_allclose(color.W_PHOTOPIC, bt709.matrix_RGB_to_XYZ[1], rtol=1e-15)
     assert color.W_PHOTOPIC.sum() == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_array_equal(
+        color.BT709_CHROMATICITIES, [*np.ravel(bt709.primaries), *bt709.whitepoint]
+    )
+
+
+def test_frozen_constants_equal_colour_science():
+    # jaxadapt.color writes colour-science's values out (its import takes seconds).
+    shape = colour.SpectralShape(380, 780, 1)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape).values
+    lefs = colour.colorimetry
+    v_scotopic = lefs.SDS_LEFS_SCOTOPIC["CIE 1951 Scotopic Standard Observer"].copy()
+    v_photopic = lefs.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"].copy()
+    ratio = (1700.0 * d65 @ v_scotopic.align(shape).values) / (
+        683.0 * d65 @ v_photopic.align(shape).values
+    )
+    assert color.SP_RATIO_D65 == pytest.approx(ratio, rel=1e-15)
+    np.testing.assert_array_equal(color.XYZ_TO_HPE, colour.appearance.hunt.MATRIX_XYZ_TO_HPE)
+
+
+def test_importing_the_library_does_not_import_colour_science():
+    code = (
+        "import sys, jaxadapt, jaxadapt.cli, jaxadapt.pipeline, jaxadapt.figures; "
+        "from jaxadapt.operators import jacobs2015, classic; "
+        "jaxadapt.cli.build_parser(); print('colour' in sys.modules)"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.stdout.strip() == "False", result.stderr
 
 
 def test_scotopic_weights_follow_the_scotopic_curve():
