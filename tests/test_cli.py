@@ -1064,6 +1064,31 @@ def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command
     assert not (tmp_path / "new").exists()
 
 
+def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
+    # Sent once frames are being written behind while later chunks are
+    # read ahead and computed: the interrupt reaches the main thread, the
+    # reader and writer threads stop and are joined, the staging folder
+    # with its frames goes, and the process ends with the shell's status.
+    out = tmp_path / "new" / "out"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxadapt", "render", "--scene", "tunnel", "--size", "320x180"]
+        + ["--format", "pfm", "--chunk", "4", "--out", str(out)],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while len(list(out.glob("*/frame_*.pfm"))) < 8 and process.poll() is None:
+        assert time.monotonic() < deadline, "the run wrote no 8 frames in 120 s"
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    err = process.communicate(timeout=120)[1]
+    assert process.returncode == 128 + signal.SIGINT, err
+    assert err.strip().splitlines()[-1] == "jaxadapt: interrupted; nothing was written to --out"
+    assert "Traceback" not in err
+    assert not (tmp_path / "new").exists()
+
+
 def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
     # Handled as an interrupt, SIGHUP ended a `nohup jaxadapt render` when
     # its terminal closed.
