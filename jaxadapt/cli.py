@@ -1009,6 +1009,7 @@ def _group_tests(table, control, method):
 def psychometric_fit(args, console):
     """``jaxadapt psychometric fit``: fits, group tests and figures into ``--out``."""
     import jax
+    from rich.progress import Progress
 
     from jaxadapt import figures
     from jaxadapt.psychophysics import stats, trials
@@ -1059,9 +1060,17 @@ def psychometric_fit(args, console):
         # (binomial terms that cancel), and its fits stop at slopes whose
         # rounding matters; the group test's normal tail 2 Phi(-|z|) is 0 in
         # float32 from z = 13.
-        with jax.enable_x64(True):
+        bar = Progress(console=console, transient=True, disable=not console.is_terminal)
+        with jax.enable_x64(True), bar:
+            count = len(groups.participant)
+            task = bar.add_task(f"fitting {count} group{'s' * (count > 1)}", total=count)
             key = jax.random.key(args.seed or 0)
-            table = trials.fit_groups(groups, key=key, n_resamples=args.resamples)
+            table = trials.fit_groups(
+                groups,
+                key=key,
+                n_resamples=args.resamples,
+                progress=lambda done: bar.advance(task, done),
+            )
             rows = _group_tests(table, control, method)
         _warn_undetermined(console, groups, table)
         trials.write_fits(staging / "fits.csv", table)

@@ -354,8 +354,9 @@ def fit_groups(
     confidence=0.95,
     guess=0.0,
     lapse=0.0,
+    progress=None,
 ):
-    """Fit every group in one call, with confidence intervals for the PSE.
+    """Fit every group, with confidence intervals for the PSE.
 
     The interval is the bootstrap's percentile interval (or the Wald
     interval), except where the data do not determine the fit
@@ -378,8 +379,9 @@ def fit_groups(
     n_resamples : int, optional
         Bootstrap resamples per group; 0 gives Wald intervals
         ``pse +- z se_pse`` from the observed information instead.
-    method, confidence, guess, lapse
-        As for :func:`jaxadapt.psychophysics.fit.bootstrap`.
+    method, confidence, guess, lapse, progress
+        As for :func:`jaxadapt.psychophysics.fit.bootstrap` (``progress``
+        is called with the number of groups done).
 
     Returns
     -------
@@ -388,23 +390,27 @@ def fit_groups(
     if n_resamples == 1:  # the bootstrap's own message asked for >= 2 only
         raise ValueError("n_resamples: expected 0 (Wald intervals) or at least 2, got 1")
     count = len(groups.participant)
-    rows = np.concatenate([np.arange(count), np.zeros(batch_size(count) - count, int)])
-    arrays = (jnp.asarray(a[rows]) for a in (groups.levels, groups.n_yes, groups.n_total))
     options = dict(guess=guess, lapse=lapse)
-    if n_resamples:
+    if n_resamples:  # in batches of its own (psyfit.bootstrap_blocks)
+        arrays = (jnp.asarray(a) for a in (groups.levels, groups.n_yes, groups.n_total))
         boot = psyfit.bootstrap(
             key,
             *arrays,
             n_resamples=n_resamples,
             method=method,
             confidence=confidence,
+            progress=progress,
             **options,
         )
         fits, low, high = boot.fit, boot.pse_ci[:, 0], boot.pse_ci[:, 1]
     else:
+        rows = np.concatenate([np.arange(count), np.zeros(batch_size(count) - count, int)])
+        arrays = (jnp.asarray(a[rows]) for a in (groups.levels, groups.n_yes, groups.n_total))
         fits = psyfit.fit(*arrays, **options)
         half = ndtri((1 + confidence) / 2) * fits.se_pse
         low, high = fits.pse - half, fits.pse + half
+        if progress is not None:
+            progress(count)
     fits, low, high = (jax.tree.map(lambda a: np.asarray(a)[:count], x) for x in (fits, low, high))
     low, high = _at_least_the_data(groups, fits.flags, low, high)
     columns = [fits.pse, fits.sigma, fits.b0, fits.b1, fits.se_pse, low, high, fits.loglik]
