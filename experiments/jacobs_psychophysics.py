@@ -135,7 +135,9 @@ def main():
         everyone = obs.simulate(k_sim, protocol, stimuli, pop, n_replications * PARTICIPANTS)
         experiment = jax.tree.map(lambda a: a[:PARTICIPANTS], everyone)
         groups = obs.groups(protocol, experiment)
-        table = trials.fit_groups(groups, key=k_boot, n_resamples=resamples)
+        # Every simulated participant enters the medians and the test below,
+        # with the prior's PSE where the data fix none, as the replications do.
+        table = trials.fit_groups(groups, key=k_boot, n_resamples=resamples, keep_undetermined=True)
         trials.write_fits(out / f"{name}_fits.csv", table)
         condition = np.asarray(table.condition)
         c = stats.compare(

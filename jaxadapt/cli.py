@@ -412,6 +412,13 @@ def build_parser():
     )
     fit.add_argument("--seed", type=_seed, default=None, help="seed of the bootstrap (default 0)")
     fit.add_argument(
+        "--keep-undetermined",
+        action="store_true",
+        help="write the estimates of groups whose data do not determine the fit (all "
+        "answers the same, separation, one level, no slope), which the fit's prior sets, "
+        "and enter them in the group test (default: NaN in fits.csv, left out of the test)",
+    )
+    fit.add_argument(
         "--ranksum",
         choices=("auto", "exact", "asymptotic"),
         default=None,
@@ -972,19 +979,25 @@ def _warn_bleached(table, console):
 def _group_tests(table, control, method):
     """The rows of ``group_test.csv``: each condition's PSEs against the
     ``control``'s (:func:`jaxadapt.psychophysics.stats.compare`), none when
-    the table has no such condition."""
+    the table has no such condition. PSEs that are NaN (the data place
+    none) are left out."""
     import jax.numpy as jnp
 
     from jaxadapt.psychophysics import stats
 
     condition = np.asarray(table.condition)
+    placed = np.isfinite(table.pse)  # NaN: the data place no PSE (trials.undetermined)
+    pse = np.where(placed, table.pse, 0.0)
     rows = []
     for other in dict.fromkeys(table.condition):
         if other == control or control not in condition:
             continue
+        x, y = condition == other, condition == control
         c = stats.compare(
-            jnp.asarray(table.pse[condition == other]),
-            jnp.asarray(table.pse[condition == control]),
+            jnp.asarray(pse[x]),
+            jnp.asarray(pse[y]),
+            x_mask=jnp.asarray(placed[x]),
+            y_mask=jnp.asarray(placed[y]),
             method=method,
         )
         rows.append(
@@ -1070,9 +1083,10 @@ def psychometric_fit(args, console):
                 key=key,
                 n_resamples=args.resamples,
                 progress=lambda done: bar.advance(task, done),
+                keep_undetermined=args.keep_undetermined,
             )
             rows = _group_tests(table, control, method)
-        _warn_undetermined(console, groups, table)
+        _warn_undetermined(console, groups, table, args.keep_undetermined, bool(rows))
         trials.write_fits(staging / "fits.csv", table)
         if rows:
             with open(staging / "group_test.csv", "w", newline="") as f:
@@ -1080,7 +1094,7 @@ def psychometric_fit(args, console):
                 writer.writeheader()
                 writer.writerows(rows)
         figures.plot_psychometric(staging / "psychometric.png", groups, table)
-        figures.plot_pse(staging / "pse.png", table)
+        figures.plot_pse(staging / "pse.png", table, rows)
     for row in rows:
         console.print(
             f"{row['condition']} vs {row['control']}: median PSE {_signed(row['median'])} vs "
@@ -1096,37 +1110,50 @@ def _signed(value, digits=3):
     return f"{round(value, digits) + 0.0:+.{digits}f}"
 
 
-def _warn_undetermined(console, groups, table):
+def _warn_undetermined(console, groups, table, kept, tested):
     """Say which groups' data do not determine their fit: those that place
-    no PSE (every response the same, one level, or no slope), whose PSE is
-    the prior's, and those whose levels separate the responses, whose PSE
-    lies somewhere between two levels (:func:`~jaxadapt.psychophysics.trials.fit_groups`)."""
+    no PSE (every response the same, one level, or no slope) and those whose
+    levels separate the responses, whose PSE lies somewhere between two
+    levels (:func:`~jaxadapt.psychophysics.trials.fit_groups`); and whether
+    the group test (``tested``) left them out or, with
+    ``--keep-undetermined`` (``kept``), took the fit's prior-set PSEs."""
     from jaxadapt.psychophysics import fit as psyfit
-    from jaxadapt.psychophysics.trials import separating_gap
+    from jaxadapt.psychophysics.trials import undetermined
 
     flags = np.asarray(table.flags)
-    low, high = separating_gap(groups)
-    for i in np.flatnonzero(flags & (psyfit.NO_PSE | psyfit.SEPARATION)):
+    written = "are its prior's, not the data's" if kept else "are NaN"
+    for i in np.flatnonzero(undetermined(flags)):
         who = f"participant {table.participant[i]}, condition {table.condition[i]}"
+        low, high = table.pse_low[i], table.pse_high[i]
         if flags[i] & psyfit.NO_PSE:
             why = ", ".join(psyfit.flag_names(int(flags[i])))
-            console.print(
-                f"warning: {who}: the data place no PSE ({why}); its PSE {table.pse[i]:+.4g} "
-                "in fits.csv is set by the fit's prior and least slope, not by the data, and "
-                "enters the group test as such; its interval is (-inf, inf)"
-            )
-        elif low[i] < high[i]:
-            console.print(
-                f"warning: {who}: the levels separate the 'no' from the 'yes' responses, so "
-                f"the data place the PSE only between {low[i]:+.3g} and {high[i]:+.3g} log "
-                "units; its interval in fits.csv spans at least that"
+            if np.isinf(low) and np.isinf(high):
+                said = f"the data place no PSE ({why})"
+            else:
+                side = f"below {high:+.3g}" if np.isinf(low) else f"above {low:+.3g}"
+                said = f"the data place the PSE only {side} log units ({why})"
+        elif low < high:
+            said = (
+                "the levels separate the 'no' from the 'yes' responses, so the data place "
+                f"the PSE only between {low:+.3g} and {high:+.3g} log units and bound sigma "
+                f"below {table.sigma_max[i]:.3g}"
             )
         else:
-            console.print(
-                f"warning: {who}: the responses change at one level, {low[i]:+.3g} log units "
-                "(one answer on either side of it: quasi-complete separation); the slope in "
-                "fits.csv is the fit's prior's, not the data's"
+            said = (
+                f"the responses change at one level, {low:+.3g} log units (one answer on "
+                "either side of it: quasi-complete separation), and bound sigma below "
+                f"{table.sigma_max[i]:.3g} without fixing it"
             )
+        console.print(
+            f"warning: {who}: {said}; its PSE and slope in fits.csv {written}", soft_wrap=True
+        )
+    left_out = int(np.sum(~np.isfinite(table.pse)))
+    if tested and left_out:
+        console.print(
+            f"the group test leaves out the {left_out} group{'s' * (left_out > 1)} whose data "
+            "place no PSE (--keep-undetermined enters their prior-set PSEs)",
+            soft_wrap=True,
+        )
 
 
 def _weights(items, cues):

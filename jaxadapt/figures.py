@@ -178,9 +178,18 @@ def plot_psychometric(path, groups, table, columns=4):
         shown = groups.n_total[g] > 0
         p = groups.n_yes[g][shown] / groups.n_total[g][shown]
         ax.plot(groups.levels[g][shown], p, "o", color=colour, ms=4)
-        curve = ndtr((x - table.pse[g]) / table.sigma[g])
-        ax.plot(x, curve, color=colour, label=f"{cond}: PSE {round(table.pse[g], 3) + 0.0:+.3f}")
-        ax.set(title=str(who), ylim=(-0.03, 1.03), xlabel="log10 test / standard")
+        if np.isfinite(table.pse[g]):
+            curve = ndtr((x - table.pse[g]) / table.sigma[g])
+            label = f"{cond}: PSE {round(table.pse[g], 3) + 0.0:+.3f}"
+            ax.plot(x, curve, color=colour, label=label)
+        else:  # the data do not determine the fit: no curve
+            ax.plot([], [], color=colour, ls="none", label=f"{cond}: no PSE determined")
+        ax.set(
+            title=str(who),
+            ylim=(-0.03, 1.03),
+            xlabel="log10 test / standard",
+            ylabel="proportion 'test brighter'",
+        )
         ax.legend(fontsize=7)
     for ax in axes[len(participants) :]:
         ax.set_axis_off()
@@ -193,39 +202,63 @@ def plot_psychometric(path, groups, table, columns=4):
     fig.savefig(path, dpi=100)
 
 
-def plot_pse(path, table):
-    """Fig. 14 of Jacobs et al. (2015): the PSEs of every condition, with medians.
+def plot_pse(path, table, tests=()):
+    """Fig. 14 of Jacobs et al. (2015): the PSEs of every condition with their
+    confidence intervals, the medians, and the group tests' p-values.
 
-    A PSE that the data do not place (``fit.NO_PSE``: every response the
-    same, one level, no slope) is set by the fit's prior and can lie
-    thousands of log units away; the axis spans the others (and 0), and
-    such a PSE is drawn hollow, at the axis' edge when beyond it (a
-    triangle pointing its way). The medians include them, as the group
-    test does. Returns the figure, saved to ``path``.
+    The axis spans the PSEs (and 0). A group whose data do not determine
+    its fit (:func:`jaxadapt.psychophysics.trials.undetermined`) is drawn
+    hollow: where its PSE is NaN, as the interval of levels the data leave
+    for it (a bar between two levels, or a triangle at the level it lies
+    beyond); where it was kept (the prior's), at that PSE, on the axis'
+    edge when beyond it (a triangle pointing its way). Medians are of the
+    PSEs the group test takes. ``tests`` are the rows of
+    ``group_test.csv``. Returns the figure, saved to ``path``.
     """
-    from jaxadapt.psychophysics.fit import NO_PSE
+    from jaxadapt.psychophysics.trials import undetermined
 
     conditions = list(dict.fromkeys(table.condition))
-    fig = Figure(figsize=(1.8 + 1.4 * len(conditions), 3.8))
+    fig = Figure(figsize=(1.8 + 1.4 * len(conditions), 4.0))
     ax = fig.subplots()
     pse = np.asarray(table.pse, float)
-    unplaced = (np.asarray(table.flags) & NO_PSE) > 0
-    placed = np.append(pse[~unplaced & np.isfinite(pse)], 0.0)
+    bracket = np.stack([table.pse_low, table.pse_high]).astype(float)
+    ci = np.stack([table.ci_low, table.ci_high]).astype(float)
+    hollow = undetermined(table.flags)
+    placed = np.append(pse[~hollow & np.isfinite(pse)], 0.0)
     pad = max(0.1 * np.ptp(placed), 0.05)
     low, high = placed.min() - pad, placed.max() + pad
+    condition = np.asarray(table.condition)
     for i, cond in enumerate(conditions):
-        here = np.asarray(table.condition) == cond
-        jitter = np.linspace(-0.12, 0.12, here.sum()) if here.sum() > 1 else np.zeros(1)
-        x, y, hollow = i + jitter, np.clip(pse[here], low, high), unplaced[here]
-        ax.plot(x[~hollow], y[~hollow], "o", color=f"C{i}", alpha=0.7)
-        for marker, where in (("o", y == pse[here]), ("^", y < pse[here]), ("v", y > pse[here])):
-            shown = hollow & where
-            ax.plot(x[shown], y[shown], marker, mfc="none", color=f"C{i}", ls="none")
-        ax.plot([i - 0.25, i + 0.25], [np.clip(np.median(pse[here]), low, high)] * 2, "k", lw=2)
+        here = np.flatnonzero(condition == cond)
+        jitter = np.linspace(-0.12, 0.12, here.size) if here.size > 1 else np.zeros(1)
+        colour = f"C{i}"
+        for x, g in zip(i + jitter, here, strict=True):
+            if not hollow[g]:
+                bar = np.clip(ci[:, g], low, high)
+                ax.plot([x, x], bar, color=colour, lw=1, alpha=0.6)
+                ax.plot(x, pse[g], "o", color=colour, alpha=0.7)
+            elif np.isfinite(pse[g]):  # kept: the prior's
+                y = np.clip(pse[g], low, high)
+                marker = "o" if y == pse[g] else ("^" if y < pse[g] else "v")
+                ax.plot(x, y, marker, mfc="none", color=colour)
+            elif np.isfinite(bracket[:, g]).all():
+                ax.plot([x, x], np.clip(bracket[:, g], low, high), color=colour, ls="--")
+                ax.plot(x, np.clip(bracket[:, g].mean(), low, high), "s", mfc="none", color=colour)
+            elif np.isfinite(bracket[:, g]).any():  # beyond one level
+                below = np.isinf(bracket[0, g])
+                y = np.clip(bracket[1 if below else 0, g], low, high)
+                ax.plot(x, y, "v" if below else "^", mfc="none", color=colour)
+        shown = here[np.isfinite(pse[here])]
+        if shown.size:
+            middle = np.clip(np.median(pse[shown]), low, high)
+            ax.plot([i - 0.25, i + 0.25], [middle] * 2, "k", lw=2)
     ax.set_ylim(low, high)
     ax.axhline(0.0, color="0.6", lw=0.8, ls=":")
     ax.set_xticks(range(len(conditions)), conditions)
-    ax.set(ylabel="PSE (log10 units)", title="points of subjective equality")
+    said = [f"{t['condition']} vs {t['control']}: p = {t['p']:.3g}" for t in tests]
+    title = "\n".join(["PSEs, 95% intervals and medians", *said])
+    ax.set(ylabel="PSE (log10 test / standard luminance)", title=title)
+    ax.title.set_fontsize(9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     return fig

@@ -712,28 +712,42 @@ def test_bad_gaze_file_is_named(tmp_path, capsys):
     _assert_one_line_error(status, err, "gaze.csv")
 
 
+def _simulated_rows(participants, shifts, levels, sigma, seed):
+    """Count rows ``p,condition,level,n_yes,20`` of simulated observers: for
+    each participant and ``(condition, shift)``, 20 trials a level of a
+    cumulative Gaussian of that PSE and ``sigma``."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for p in participants:
+        for condition, shift in shifts:
+            k = rng.binomial(20, norm_cdf((levels - shift) / sigma))
+            rows += [f"p{p},{condition},{x:.4f},{y},20" for x, y in zip(levels, k, strict=True)]
+    return rows
+
+
 def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
-    rng = np.random.default_rng(0)
     levels = np.log10(np.array([14, 19, 27, 35, 49]) / 27)  # the afterimage protocol
     rows = ["participant,condition,level,n_yes,n_total"]
-    for p in range(6):
-        for condition, shift in (("control", 0.0), ("manipulated", 0.15)):
-            k = rng.binomial(20, norm_cdf((levels - shift) / 0.1))
-            rows += [f"p{p},{condition},{x:.4f},{y},20" for x, y in zip(levels, k, strict=True)]
+    rows += _simulated_rows(range(6), (("control", 0.0), ("manipulated", 0.15)), levels, 0.1, 0)
     out = tmp_path / "out"
     status, err = _fit_rows(capsys, rows, out, "--resamples", "0")
     assert status == 0, err
     trials = out / "trials.csv"
     fits = list(csv.DictReader(open(out / "fits.csv")))
-    assert len(fits) == 12 and all(f["converged"] == "true" for f in fits)
+    assert len(fits) == 12
+    # p1's and p5's control answers change at one level (quasi-complete
+    # separation): the data do not fix their slopes
+    undetermined = [f["participant"] + f["condition"] for f in fits if f["converged"] != "true"]
+    assert undetermined == ["p1control", "p5control"]
     (test,) = list(csv.DictReader(open(out / "group_test.csv")))
     assert float(test["shift"]) == pytest.approx(0.15, abs=0.06) and float(test["p"]) < 0.01
     pses = {
-        c: [float(f["pse"]) for f in fits if f["condition"] == c]
+        c: [float(f["pse"]) for f in fits if f["condition"] == c and f["pse"] != "nan"]
         for c in ("manipulated", "control")
     }
-    # Groups of 6: "auto" is exact (SciPy's rule); --ranksum asymptotic asks
-    # for the normal approximation. Both as SciPy gives them.
+    assert (test["n"], test["n_control"]) == ("6", "4")  # without p1's and p5's
+    # Groups of 6 and 4: "auto" is exact (SciPy's rule); --ranksum asymptotic
+    # asks for the normal approximation. Both as SciPy gives them.
     for method, exact in (("auto", "true"), ("asymptotic", "false")):
         if method != "auto":
             status, err = _fit_rows(capsys, rows, out, "--resamples", "0", "--ranksum", method)
@@ -778,11 +792,12 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     )
     assert status == 0, err
     said = " ".join(err.split())
-    assert "warning: participant p0, condition dark: the data place no PSE (all_same" in said
+    assert "p0, condition dark: the data place the PSE only below -0.285 log units (all_" in said
     assert "warning: participant p1, condition dark: the data place no PSE (flat)" in said
     # p5's responses change at one level (quasi-complete separation): said too.
     assert "p5, condition dark: the responses change at one level" in said
     assert said.count("warning") == 3, said
+    assert "its PSE and slope in fits.csv are NaN" in said
 
 
 def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
@@ -877,6 +892,48 @@ def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
     assert "p1, condition control: the levels separate" in said and "+0 and +0.15" in said
 
 
+def test_undetermined_fits_are_nan_and_left_out_of_the_group_test(tmp_path, capsys):
+    # p0's control answers are all "yes" at one level: written as pse
+    # -503161, sigma 141421, b1 0, converged true. p1's control is
+    # separated (0 to 5 to 10 of 10 "yes"): sigma 0.0307, converged true,
+    # where the likelihood grows without end as sigma goes to 0. Both
+    # entered the group test. Now: NaN, not converged, what the data
+    # determine in columns of their own, and left out of the test unless
+    # --keep-undetermined.
+    levels = np.linspace(-0.4, 0.4, 9)
+    rows = ["participant,condition,level,n_yes,n_total", "p0,control,-0.2,10,10"]
+    for x, k in zip(levels, (0, 0, 0, 0, 0, 0, 5, 10, 10), strict=True):
+        rows.append(f"p1,control,{x:.2f},{k},10")
+    rows += _simulated_rows(range(2, 7), (("control", 0.0), ("bright", 0.1)), levels, 0.2, 2)
+    out = tmp_path / "o"
+    status, err = _fit_rows(capsys, rows, out, "--resamples", "0")
+    assert status == 0, err
+    fits = {f["participant"] + f["condition"]: f for f in csv.DictReader(open(out / "fits.csv"))}
+    same, separated = fits["p0control"], fits["p1control"]
+    for row in (same, separated):
+        assert [row[c] for c in ("pse", "sigma", "b0", "b1", "se_pse")] == ["nan"] * 5, row
+        assert row["converged"] == "false"
+    assert "all_same" in same["flags"] and "separation" in separated["flags"]
+    assert (same["pse_low"], same["pse_high"]) == ("-inf", "inf")  # one level: no side
+    assert float(separated["pse_low"]) == float(separated["pse_high"]) == 0.2
+    assert 0.01 < float(separated["sigma_max"]) < 0.2
+    determined = fits["p2control"]
+    assert determined["converged"] == "true" and determined["pse_low"] == "nan"
+    (test,) = list(csv.DictReader(open(out / "group_test.csv")))
+    assert (test["n"], test["n_control"]) == ("5", "5")
+    said = " ".join(err.split())
+    assert "the group test leaves out the 2 groups whose data place no PSE" in said
+    status, err = _fit_rows(capsys, rows, out, "--resamples", "0", "--keep-undetermined")
+    assert status == 0, err
+    fits = {f["participant"] + f["condition"]: f for f in csv.DictReader(open(out / "fits.csv"))}
+    assert (
+        np.isfinite(float(fits["p0control"]["pse"])) and fits["p0control"]["converged"] == "false"
+    )
+    (test,) = list(csv.DictReader(open(out / "group_test.csv")))
+    assert (test["n"], test["n_control"]) == ("5", "7")
+    assert "leaves out" not in err
+
+
 def _fit_in_float32(capsys, rows, folder):
     """:func:`_fit_rows` with ``--resamples 0`` and float64 off, as for a
     user (the tests switch it on)."""
@@ -943,7 +1000,7 @@ def test_pse_figure_spans_the_placed_pses(tmp_path):
         tuple(f"p{i}" for i in range(3)) * 2,
         ("control",) * 3 + ("test",) * 3,
         pse,
-        *[np.zeros(6)] * 7,
+        *[np.zeros(6)] * 10,
         np.ones(6, bool),
         flags,
     )

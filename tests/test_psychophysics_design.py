@@ -452,3 +452,26 @@ def test_fit_groups_keeps_the_intervals_in_the_fits_dtype():
         table = trials.fit_groups(groups, key=None, n_resamples=0)
     assert table.pse.dtype == table.ci_low.dtype == table.ci_high.dtype == np.float32
     assert table.ci_low[0] <= 0.0 and table.ci_high[0] >= 0.3  # the gap of p1's separation
+
+
+def test_the_sigma_bound_drops_the_profile_likelihood_by_the_chi2_quantile():
+    # Checked against the profile log-likelihood maximised over a dense grid
+    # of PSEs (not the bound's own optimiser): at the bound it lies 1.92
+    # (chi2(1, 0.95) / 2) below its supremum, reached as sigma goes to 0;
+    # a falling function's mirror image has the same bound.
+    from scipy.special import log_ndtr
+
+    x = np.linspace(-0.4, 0.4, 9)
+    k = np.array([0, 0, 0, 0, 0, 0, 5, 10, 10])
+    n = np.full(9, 10)
+
+    def profile(sigma):
+        pse = np.linspace(-1.0, 1.0, 200_001)[:, None]
+        z = (x - pse) / sigma
+        return np.max(np.sum(k * log_ndtr(z) + (n - k) * log_ndtr(-z), axis=1))
+
+    bound = trials.sigma_bound(x, k, n)
+    assert profile(1e-6) - profile(bound) == pytest.approx(3.841458820694124 / 2, abs=1e-4)
+    assert trials.sigma_bound(-x, k, n) == pytest.approx(bound, rel=1e-6)
+    # Complete separation on one trial a level rejects no sigma.
+    assert trials.sigma_bound(x[:2], [0, 1], [1, 1]) == np.inf

@@ -33,6 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
+from scipy.optimize import brentq, minimize_scalar
+from scipy.special import log_ndtr
 
 from jaxadapt.io import atomic_path
 from jaxadapt.psychophysics import fit as psyfit
@@ -54,6 +56,9 @@ FIT_COLUMNS = (
     "se_pse",
     "ci_low",
     "ci_high",
+    "pse_low",
+    "pse_high",
+    "sigma_max",
     "loglik",
     "converged",
     "flags",
@@ -108,7 +113,11 @@ class FitTable(NamedTuple):
     """One row per group; the fields are the columns of ``fits.csv``
     (``FIT_COLUMNS``). ``ci_low, ci_high`` bound the PSE (see
     :func:`fit_groups`); ``flags`` are the integer flags of
-    :mod:`jaxadapt.psychophysics.fit`."""
+    :mod:`jaxadapt.psychophysics.fit`. Where the data do not determine the
+    fit (:func:`undetermined`), what they leave open is NaN and
+    ``converged`` false, and ``pse_low, pse_high`` (the levels the PSE lies
+    between) and ``sigma_max`` (a 95% bound on sigma, for separated data)
+    say what they do determine; elsewhere those three are NaN."""
 
     participant: tuple
     condition: tuple
@@ -119,6 +128,9 @@ class FitTable(NamedTuple):
     se_pse: np.ndarray
     ci_low: np.ndarray
     ci_high: np.ndarray
+    pse_low: np.ndarray
+    pse_high: np.ndarray
+    sigma_max: np.ndarray
     loglik: np.ndarray
     converged: np.ndarray
     flags: np.ndarray
@@ -355,6 +367,7 @@ def fit_groups(
     guess=0.0,
     lapse=0.0,
     progress=None,
+    keep_undetermined=False,
 ):
     """Fit every group, with confidence intervals for the PSE.
 
@@ -382,6 +395,10 @@ def fit_groups(
     method, confidence, guess, lapse, progress
         As for :func:`jaxadapt.psychophysics.fit.bootstrap` (``progress``
         is called with the number of groups done).
+    keep_undetermined : bool, optional
+        Keep the estimates of groups whose data do not determine the fit
+        (:func:`undetermined`), which the fit's prior and least slope set,
+        instead of NaN; ``converged`` is false for them either way.
 
     Returns
     -------
@@ -413,8 +430,80 @@ def fit_groups(
             progress(count)
     fits, low, high = (jax.tree.map(lambda a: np.asarray(a)[:count], x) for x in (fits, low, high))
     low, high = _at_least_the_data(groups, fits.flags, low, high)
-    columns = [fits.pse, fits.sigma, fits.b0, fits.b1, fits.se_pse, low, high, fits.loglik]
-    return FitTable(groups.participant, groups.condition, *columns, fits.converged, fits.flags)
+    open_ = undetermined(fits.flags)
+    gap_low, gap_high = separating_gap(groups)
+    unplaced = (fits.flags & psyfit.NO_PSE) > 0
+    single = (fits.flags & psyfit.SINGLE_LEVEL) > 0
+    pse_low = np.where(open_, np.where(single, -np.inf, gap_low), np.nan)
+    pse_high = np.where(open_, np.where(single, np.inf, gap_high), np.nan)
+    separated = ((fits.flags & psyfit.SEPARATION) > 0) & ~unplaced
+    sigma_max = np.full(count, np.nan)
+    for i in np.flatnonzero(separated):
+        sigma_max[i] = sigma_bound(groups.levels[i], groups.n_yes[i], groups.n_total[i])
+    values = {name: getattr(fits, name) for name in ("pse", "sigma", "b0", "b1", "se_pse")}
+    if not keep_undetermined:
+        no_mle = (fits.flags & psyfit.NO_MLE) > 0
+        for name, column in values.items():
+            # a flat slope's b0 and b1 are the data's; its PSE and sigma are not
+            blank = open_ if name in ("pse", "sigma", "se_pse") else no_mle
+            values[name] = np.where(blank, np.nan, column)
+    return FitTable(
+        groups.participant,
+        groups.condition,
+        *values.values(),
+        low,
+        high,
+        pse_low.astype(low.dtype),
+        pse_high.astype(low.dtype),
+        sigma_max.astype(low.dtype),
+        fits.loglik,
+        fits.converged & ~open_,
+        fits.flags,
+    )
+
+
+def undetermined(flags):
+    """Groups (by their fit's ``flags``) whose data do not determine the
+    fit: no maximum-likelihood estimate exists (every response the same,
+    separation, one level: :data:`~jaxadapt.psychophysics.fit.NO_MLE`), or
+    the slope is zero (``FLAT``), which places no PSE."""
+    return (np.asarray(flags) & (psyfit.NO_MLE | psyfit.FLAT)) > 0
+
+
+#: Confidence of :func:`sigma_bound`, and the drop of the log-likelihood
+#: that bounds it: half the chi-squared quantile of one degree of freedom.
+SIGMA_BOUND_LEVEL = 0.95
+_SIGMA_DROP = 0.5 * 3.841458820694124
+
+
+def sigma_bound(levels, n_yes, n_total):
+    """The largest spread ``sigma`` (log10 units) that data whose levels
+    separate the responses do not reject at :data:`SIGMA_BOUND_LEVEL`: the
+    profile likelihood's bound (the log-likelihood, maximised over the PSE,
+    within ``chi2(1) / 2`` of its supremum, reached as sigma goes to 0);
+    ``inf`` when no sigma is rejected (too few trials)."""
+    x, k, n = (np.asarray(a, float) for a in (levels, n_yes, n_total))
+    x, k, n = x[n > 0], k[n > 0], n[n > 0]
+    if np.sum(k * x) / max(np.sum(k), 1e-300) < np.sum((n - k) * x) / max(np.sum(n - k), 1e-300):
+        x = -x  # a falling function: its mirror image rises
+    span = max(np.ptp(x), 1e-3)
+
+    def profile(sigma):
+        def nll(pse):
+            z = (x - pse) / sigma
+            return -np.sum(k * log_ndtr(z) + (n - k) * log_ndtr(-z))
+
+        lo, hi = x.min() - 10 * sigma - span, x.max() + 10 * sigma + span
+        return -minimize_scalar(nll, bounds=(lo, hi), method="bounded").fun
+
+    target = profile(1e-9 * span) - _SIGMA_DROP
+    largest = 1e3 * span
+    if profile(largest) >= target:
+        return np.inf
+    log_sigma = brentq(
+        lambda u: profile(np.exp(u)) - target, np.log(1e-9 * span), np.log(largest), xtol=1e-10
+    )
+    return float(np.exp(log_sigma))
 
 
 def batch_size(count):
