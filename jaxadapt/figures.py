@@ -8,6 +8,9 @@ Figures are drawn with matplotlib's object-oriented API (no pyplot), so
 that writing one changes no global backend state.
 """
 
+import contextlib
+import functools
+
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
@@ -92,8 +95,14 @@ def shrink(frame, width=CONTACT_WIDTH):
     return frame[:H, :W].reshape(H // f, f, W // f, f, -1).mean(axis=(1, 3), dtype=np.float32)
 
 
-def contact_sheet(frames, columns=4):
-    """Tile uint8 frames ``(K, H, W, 3)`` into one image, with white gutters."""
+#: Height of the strip under each frame of a contact sheet that holds its label, pixels.
+LABEL_HEIGHT = 18
+
+
+def contact_sheet(frames, columns=4, labels=None):
+    """Tile uint8 frames ``(K, H, W, 3)`` into one image, with white gutters;
+    with ``labels`` (K strings, e.g. each frame's time), each is written in
+    a strip under its frame."""
     frames = np.asarray(frames)
     if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3 or not len(frames):
         raise ValueError(
@@ -102,23 +111,46 @@ def contact_sheet(frames, columns=4):
         )
     check_whole("columns", columns, least=1)
     K, H, W, _ = frames.shape
+    if labels is not None and len(labels) != K:
+        raise ValueError(f"labels: expected one for each of the {K} frames, got {len(labels)}")
+    strip = 0 if labels is None else LABEL_HEIGHT
     rows = -(-K // columns)
-    sheet = np.full((rows * (H + 4) + 4, columns * (W + 4) + 4, 3), 255, np.uint8)
+    tile_h = H + strip + 4
+    sheet = np.full((rows * tile_h + 4, columns * (W + 4) + 4, 3), 255, np.uint8)
     for k in range(K):
         r, c = divmod(k, columns)
-        sheet[4 + r * (H + 4) : 4 + r * (H + 4) + H, 4 + c * (W + 4) : 4 + c * (W + 4) + W] = (
-            frames[k]
-        )
+        top, left = 4 + r * tile_h, 4 + c * (W + 4)
+        sheet[top : top + H, left : left + W] = frames[k]
+        if labels is not None:
+            sheet[top + H : top + H + strip, left : left + W] = _label(labels[k], W, strip)
     return sheet
 
 
-def plot_columns(path, table, title):
+def _label(text, width, height):
+    """``text`` in dark grey on white, centred: a ``(height, width, 3)`` uint8 image."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100)
+    canvas = FigureCanvasAgg(fig)
+    fig.text(0.5, 0.5, text, ha="center", va="center", fontsize=8, color="0.15")
+    canvas.draw()
+    drawn = np.asarray(canvas.buffer_rgba())[:height, :width, :3]
+    image = np.full((height, width, 3), 255, np.uint8)
+    image[: drawn.shape[0], : drawn.shape[1]] = drawn
+    return image
+
+
+def plot_columns(path, table, title, units=None, notes=()):
     """Every per-frame column of a diagnostics table against time, one panel each.
 
     For operators whose diagnostics are not the 2000 operator's (the 2015
     renderer's state at the gaze point, the static curves' background). A
     positive column spanning more than two decades is drawn on a log scale.
+    ``units`` (by column) label the y axes; ``notes`` are lines printed
+    under the panels (what a reader could take for a defect: a floor, an
+    unclamped value). Returns the figure, saved to ``path``.
     """
+    units = units or {}
     t = table["t"]
     columns = [name for name, column in table.items() if name != "t" and column.ndim == 1]
     if not columns:
@@ -131,12 +163,72 @@ def plot_columns(path, table, title):
         column = table[name]
         wide = np.all(column > 0) and column.max() > 100 * column.min()
         ax.plot(t, column, marker=_marker(t))
-        ax.set(xlabel="time (s)", title=name, yscale="log" if wide else "linear")
+        ax.set(
+            xlabel="time (s)",
+            ylabel=units.get(name, ""),
+            title=name,
+            yscale="log" if wide else "linear",
+        )
     for ax in axes[len(columns) :]:
         ax.set_axis_off()
     fig.suptitle(title)
-    fig.tight_layout()
+    for i, note in enumerate(notes):
+        fig.text(0.01, 0.01 + 0.035 * (len(notes) - 1 - i), note, fontsize=8, color="0.3")
+    fig.tight_layout(rect=(0, 0.035 * len(notes), 1, 1))
     fig.savefig(path, dpi=100)
+    return fig
+
+
+@functools.cache
+def _characters(path):
+    """The code points the font file at ``path`` has glyphs for."""
+    from matplotlib.ft2font import FT2Font
+
+    return frozenset(FT2Font(path).get_charmap())
+
+
+#: Fonts never used as a fallback: they draw a placeholder for every character.
+_PLACEHOLDER_FONTS = ("Last Resort",)
+
+
+def _fonts_for(texts):
+    """Font families that draw the characters of ``texts``: matplotlib's
+    default, then installed fonts that have what it lacks (matplotlib falls
+    back glyph by glyph along the list), and the characters none has."""
+    from matplotlib import font_manager
+
+    default = font_manager.findfont(font_manager.FontProperties())
+    families = [font_manager.get_font(default).family_name]
+    missing = {ord(c) for text in texts for c in text if not c.isspace()} - _characters(default)
+    for entry in font_manager.fontManager.ttflist:
+        if not missing:
+            break
+        if entry.name.startswith(_PLACEHOLDER_FONTS) or entry.name in families:
+            continue
+        try:
+            found = missing & _characters(entry.fname)
+        except (OSError, RuntimeError):  # a font FreeType cannot read
+            continue
+        if found:
+            families.append(entry.name)
+            missing -= found
+    return families, missing
+
+
+@contextlib.contextmanager
+def _drawing(texts):
+    """Yield ``drawable(text)`` for figures that show ``texts`` (participant
+    and condition names, any script): within the block the fonts of
+    :func:`_fonts_for` are used, and ``drawable`` writes a character no
+    installed font has as its code point (``U+6697``) instead of an empty
+    box and a matplotlib warning for each."""
+    families, missing = _fonts_for(list(texts))
+
+    def drawable(text):
+        return "".join(f"U+{ord(c):04X}" if ord(c) in missing else c for c in str(text))
+
+    with matplotlib.rc_context({"font.family": families}):
+        yield drawable
 
 
 #: Participants :func:`plot_psychometric` draws at most: a panel each.
@@ -165,41 +257,43 @@ def plot_psychometric(path, groups, table, columns=4):
     conditions = list(dict.fromkeys(groups.condition))
     ncols = min(columns, len(participants))
     nrows = -(-len(participants) // ncols)
-    # Wide enough for the title with one participant; the constrained
-    # layout keeps the title clear of the panels' titles with many.
-    fig = Figure(figsize=(max(3.2 * ncols, 6.0), 2.6 * nrows + 0.5), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
-    x = np.linspace(groups.levels.min() - 0.1, groups.levels.max() + 0.1, 200)
-    for g, (who, cond) in enumerate(zip(groups.participant, groups.condition, strict=True)):
-        if who not in participants:
-            continue
-        ax = axes[participants.index(who)]
-        colour = f"C{conditions.index(cond)}"
-        shown = groups.n_total[g] > 0
-        p = groups.n_yes[g][shown] / groups.n_total[g][shown]
-        ax.plot(groups.levels[g][shown], p, "o", color=colour, ms=4)
-        if np.isfinite(table.pse[g]):
-            curve = ndtr((x - table.pse[g]) / table.sigma[g])
-            label = f"{cond}: PSE {round(table.pse[g], 3) + 0.0:+.3f}"
-            ax.plot(x, curve, color=colour, label=label)
-        else:  # the data do not determine the fit: no curve
-            ax.plot([], [], color=colour, ls="none", label=f"{cond}: no PSE determined")
-        ax.set(
-            title=str(who),
-            ylim=(-0.03, 1.03),
-            xlabel="log10 test / standard",
-            ylabel="proportion 'test brighter'",
+    with _drawing([*map(str, participants), *conditions]) as drawable:
+        # Wide enough for the title with one participant; the constrained
+        # layout keeps the title clear of the panels' titles with many.
+        fig = Figure(figsize=(max(3.2 * ncols, 6.0), 2.6 * nrows + 0.5), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+        x = np.linspace(groups.levels.min() - 0.1, groups.levels.max() + 0.1, 200)
+        for g, (who, cond) in enumerate(zip(groups.participant, groups.condition, strict=True)):
+            if who not in participants:
+                continue
+            ax = axes[participants.index(who)]
+            colour = f"C{conditions.index(cond)}"
+            shown = groups.n_total[g] > 0
+            p = groups.n_yes[g][shown] / groups.n_total[g][shown]
+            ax.plot(groups.levels[g][shown], p, "o", color=colour, ms=4)
+            if np.isfinite(table.pse[g]):
+                curve = ndtr((x - table.pse[g]) / table.sigma[g])
+                label = f"{drawable(cond)}: PSE {round(table.pse[g], 3) + 0.0:+.3f}"
+                ax.plot(x, curve, color=colour, label=label)
+            else:  # the data do not determine the fit: no curve
+                label = f"{drawable(cond)}: no PSE determined"
+                ax.plot([], [], color=colour, ls="none", label=label)
+            ax.set(
+                title=drawable(who),
+                ylim=(-0.03, 1.03),
+                xlabel="log10 test / standard",
+                ylabel="proportion 'test brighter'",
+            )
+            ax.legend(fontsize=7)
+        for ax in axes[len(participants) :]:
+            ax.set_axis_off()
+        caption = (
+            ""
+            if len(every) == len(participants)
+            else f" (the first {len(participants)} of {len(every)} participants)"
         )
-        ax.legend(fontsize=7)
-    for ax in axes[len(participants) :]:
-        ax.set_axis_off()
-    caption = (
-        ""
-        if len(every) == len(participants)
-        else f" (the first {len(participants)} of {len(every)} participants)"
-    )
-    fig.suptitle(f"proportion 'test brighter' and cumulative-Gaussian fits{caption}")
-    fig.savefig(path, dpi=100)
+        fig.suptitle(f"proportion 'test brighter' and cumulative-Gaussian fits{caption}")
+        fig.savefig(path, dpi=100)
 
 
 def plot_pse(path, table, tests=()):
@@ -218,47 +312,53 @@ def plot_pse(path, table, tests=()):
     from jaxadapt.psychophysics.trials import undetermined
 
     conditions = list(dict.fromkeys(table.condition))
-    fig = Figure(figsize=(1.8 + 1.4 * len(conditions), 4.0))
-    ax = fig.subplots()
     pse = np.asarray(table.pse, float)
-    bracket = np.stack([table.pse_low, table.pse_high]).astype(float)
-    ci = np.stack([table.ci_low, table.ci_high]).astype(float)
     hollow = undetermined(table.flags)
     placed = np.append(pse[~hollow & np.isfinite(pse)], 0.0)
     pad = max(0.1 * np.ptp(placed), 0.05)
-    low, high = placed.min() - pad, placed.max() + pad
+    span = (placed.min() - pad, placed.max() + pad)
     condition = np.asarray(table.condition)
-    for i, cond in enumerate(conditions):
-        here = np.flatnonzero(condition == cond)
-        jitter = np.linspace(-0.12, 0.12, here.size) if here.size > 1 else np.zeros(1)
-        colour = f"C{i}"
-        for x, g in zip(i + jitter, here, strict=True):
-            if not hollow[g]:
-                bar = np.clip(ci[:, g], low, high)
-                ax.plot([x, x], bar, color=colour, lw=1, alpha=0.6)
-                ax.plot(x, pse[g], "o", color=colour, alpha=0.7)
-            elif np.isfinite(pse[g]):  # kept: the prior's
-                y = np.clip(pse[g], low, high)
-                marker = "o" if y == pse[g] else ("^" if y < pse[g] else "v")
-                ax.plot(x, y, marker, mfc="none", color=colour)
-            elif np.isfinite(bracket[:, g]).all():
-                ax.plot([x, x], np.clip(bracket[:, g], low, high), color=colour, ls="--")
-                ax.plot(x, np.clip(bracket[:, g].mean(), low, high), "s", mfc="none", color=colour)
-            elif np.isfinite(bracket[:, g]).any():  # beyond one level
-                below = np.isinf(bracket[0, g])
-                y = np.clip(bracket[1 if below else 0, g], low, high)
-                ax.plot(x, y, "v" if below else "^", mfc="none", color=colour)
-        shown = here[np.isfinite(pse[here])]
-        if shown.size:
-            middle = np.clip(np.median(pse[shown]), low, high)
-            ax.plot([i - 0.25, i + 0.25], [middle] * 2, "k", lw=2)
-    ax.set_ylim(low, high)
-    ax.axhline(0.0, color="0.6", lw=0.8, ls=":")
-    ax.set_xticks(range(len(conditions)), conditions)
-    said = [f"{t['condition']} vs {t['control']}: p = {t['p']:.3g}" for t in tests]
-    title = "\n".join(["PSEs, 95% intervals and medians", *said])
-    ax.set(ylabel="PSE (log10 test / standard luminance)", title=title)
-    ax.title.set_fontsize(9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with _drawing(conditions) as drawable:
+        fig = Figure(figsize=(1.8 + 1.4 * len(conditions), 4.0))
+        ax = fig.subplots()
+        for i, cond in enumerate(conditions):
+            here = np.flatnonzero(condition == cond)
+            jitter = np.linspace(-0.12, 0.12, here.size) if here.size > 1 else np.zeros(1)
+            for x, g in zip(i + jitter, here, strict=True):
+                _pse_mark(ax, x, f"C{i}", table, g, hollow[g], span)
+            shown = here[np.isfinite(pse[here])]
+            if shown.size:
+                middle = np.clip(np.median(pse[shown]), *span)
+                ax.plot([i - 0.25, i + 0.25], [middle] * 2, "k", lw=2)
+        ax.set_ylim(*span)
+        ax.axhline(0.0, color="0.6", lw=0.8, ls=":")
+        ax.set_xticks(range(len(conditions)), [drawable(c) for c in conditions])
+        said = [f"{drawable(t['condition'])} vs {drawable(t['control'])}" for t in tests]
+        said = [f"{pair}: p = {t['p']:.3g}" for pair, t in zip(said, tests, strict=True)]
+        title = "\n".join(["PSEs, 95% intervals and medians", *said])
+        ax.set(ylabel="PSE (log10 test / standard luminance)", title=title)
+        ax.title.set_fontsize(9)
+        fig.tight_layout()
+        fig.savefig(path, dpi=100)
     return fig
+
+
+def _pse_mark(ax, x, colour, table, g, hollow, span):
+    """Group ``g``'s PSE at ``x`` (:func:`plot_pse`), clipped to ``span``."""
+    pse = float(table.pse[g])
+    if not hollow:
+        ax.plot([x, x], np.clip([table.ci_low[g], table.ci_high[g]], *span), color=colour, lw=1)
+        ax.plot(x, pse, "o", color=colour, alpha=0.7)
+        return
+    if np.isfinite(pse):  # kept: the prior's
+        y = np.clip(pse, *span)
+        ax.plot(x, y, "o" if y == pse else ("^" if y < pse else "v"), mfc="none", color=colour)
+        return
+    bracket = np.array([table.pse_low[g], table.pse_high[g]], float)
+    if np.isfinite(bracket).all():
+        ax.plot([x, x], np.clip(bracket, *span), color=colour, ls="--")
+        ax.plot(x, np.clip(bracket.mean(), *span), "s", mfc="none", color=colour)
+    elif np.isfinite(bracket).any():  # beyond one level
+        below = np.isinf(bracket[0])
+        y = np.clip(bracket[1] if below else bracket[0], *span)
+        ax.plot(x, y, "v" if below else "^", mfc="none", color=colour)

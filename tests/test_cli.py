@@ -1009,6 +1009,67 @@ def test_pse_figure_spans_the_placed_pses(tmp_path):
     assert (tmp_path / "pse.png").stat().st_size > 0
 
 
+def test_contact_sheet_labels_each_frame():
+    from jaxadapt import figures
+
+    strip = figures.LABEL_HEIGHT
+    sheet = figures.contact_sheet(np.zeros((3, 20, 60, 3), np.uint8), 2, ["0 s", "1.5 s", "3 s"])
+    assert sheet.shape == (2 * (20 + strip + 4) + 4, 2 * 64 + 4, 3)
+    for top, left in ((24, 4), (24, 68), (24 + strip + 24, 4)):  # each frame's strip
+        assert (sheet[top : top + strip, left : left + 60] < 128).any()  # text is drawn
+    assert (sheet[24 + strip + 24 :, 68:] == 255).all()  # no fourth frame, no label
+    with pytest.raises(ValueError, match="labels: expected one for each of the 3 frames, got 2"):
+        figures.contact_sheet(np.zeros((3, 20, 60, 3), np.uint8), labels=["a", "b"])
+
+
+def test_the_2015_diagnostics_plot_has_units_and_says_why_a_is_flat(tmp_path):
+    # A and A_T sat at the 100 cd/m2 floor and rho ran to 2.7 with nothing
+    # on the plot saying why; its y axes had no units.
+    from jaxadapt import figures
+    from jaxadapt.operators import jacobs2015
+
+    table = {"t": np.arange(3.0), "A": np.full(3, 2.0), "rho": np.array([-0.17, 0.5, 2.7])}
+    notes = jacobs2015.diagnostics_notes(jacobs2015.Params())
+    fig = figures.plot_columns(
+        tmp_path / "a.png", table, "t", units=jacobs2015.DIAGNOSTIC_UNITS, notes=notes
+    )
+    assert [ax.get_ylabel() for ax in fig.axes[:2]] == ["log10 cd/m2", "Eq 13, unclamped"]
+    said = " ".join(text.get_text() for text in fig.texts)
+    assert "floored at 100 cd/m2" in said and "clamped to [0, 1]" in said
+    assert set(table) - {"t"} <= set(jacobs2015.DIAGNOSTIC_UNITS)
+    frames, dt = jnp.full((2, 8, 8, 3), 1.0), jnp.full(2, 0.1)
+    diag = jacobs2015.run(jacobs2015.Params(), frames, dt, key=jax.random.key(0))[1]
+    columns = jacobs2015.diagnostics_table(diag)
+    assert set(columns) - {"t"} == set(jacobs2015.DIAGNOSTIC_UNITS)
+
+
+def test_figures_draw_any_condition_name_without_warnings(tmp_path, capsys):
+    # Unicode names fitted right but printed 26 lines of matplotlib's
+    # "Glyph ... missing" and drew empty boxes. A character no installed
+    # font has is written as its code point (U+1F9A9 here, on most machines).
+    import warnings
+
+    from jaxadapt import figures
+
+    dark, other = "暗い条件 ☾", "contrôle \U0001f9a9"
+    levels = np.linspace(-0.3, 0.3, 5)
+    rows = ["participant,condition,level,n_yes,n_total"]
+    rows += _simulated_rows(range(4), ((other, 0.0), (dark, 0.1)), levels, 0.15, 4)
+    folder = tmp_path / "o"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        status, err = _fit_rows(capsys, rows, folder, "--resamples", "0", "--control", other)
+    assert status == 0, err
+    assert [str(w.message) for w in caught if "Glyph" in str(w.message)] == []
+    assert "Glyph" not in err
+    families, missing = figures._fonts_for([dark, other])
+    with figures._drawing([dark, other]) as drawable:
+        assert drawable(dark + other) == "".join(
+            f"U+{ord(c):04X}" if ord(c) in missing else c for c in dark + other
+        )
+    assert families[0] == "DejaVu Sans" and not any("Last Resort" in f for f in families)
+
+
 def norm_cdf(z):
     from scipy.special import ndtr
 

@@ -558,6 +558,11 @@ def _run(params, frames, dt, on_host):
     return out, Diagnostics(jnp.cumsum(dt) - dt, mean_background), verdict
 
 
+#: Units of the columns of :func:`diagnostics_table` (``t`` is in s).
+DIAGNOSTIC_UNITS = {"background": "cd/m2"}
+
+
 def diagnostics_table(diag):
-    """Per-frame columns of a :class:`Diagnostics` (``t``, ``background``), numpy."""
+    """Per-frame columns of a :class:`Diagnostics` (``t``, ``background``: the
+    frame's geometric-mean background, cd/m2), numpy."""
     return {"t": np.asarray(diag.t), "background": np.asarray(diag.background)}

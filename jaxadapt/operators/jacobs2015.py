@@ -936,12 +936,39 @@ def _init(params, first_frame, gaze, key, adaptation, on_host):
     return state._replace(A=state.A + guard), verdict
 
 
+#: Units of the columns of :func:`diagnostics_table` (``t`` is in s).
+DIAGNOSTIC_UNITS = {
+    "A": "log10 cd/m2",
+    "A_T": "log10 cd/m2",
+    "sigma": "cd/m2",
+    "gaze_x": "pixels",
+    "gaze_y": "pixels",
+    **{f"B_{cone}": "bleached fraction" for cone in "LMS"},
+    **{f"C_{cone}": "calcium (relative)" for cone in "LMS"},
+    "rho": "Eq 13, unclamped",
+}
+
+
+def diagnostics_notes(params):
+    """What a reader of the diagnostics needs to know of ``params`` (lines
+    for a plot): ``A`` and ``A_T`` never fall below the adaptation floor of
+    §2.4, and ``rho`` is Eq 13 before its clamp to [0, 1]."""
+    floor = float(params.adaptation_floor)
+    return (
+        f"A and A_T are floored at {floor:g} cd/m2 (log10 {np.log10(floor):g}; §2.4): "
+        "a darker fixation shows the floor",
+        "rho is Eq 13 unclamped (below 0 scotopic, above 1 photopic); the Purkinje shift "
+        "and the mesopic colour use it clamped to [0, 1]",
+    )
+
+
 def diagnostics_table(diag):
     """Per-frame columns of a :class:`Diagnostics`, as numpy arrays.
 
     ``t``; ``A`` and ``A_T`` (log10 cd/m2); ``sigma`` (cd/m2); the fixation
     ``gaze_x``, ``gaze_y`` (pixels); L, M, S bleaching ``B_L`` ... and
-    calcium ``C_L`` ... at the fixation; and ``rho`` there.
+    calcium ``C_L`` ... at the fixation; and ``rho`` there (Eq 13,
+    unclamped: :func:`diagnostics_notes`). Units: :data:`DIAGNOSTIC_UNITS`.
     """
     columns = {"t": diag.t, "A": diag.A, "A_T": diag.A_T, "sigma": diag.sigma}
     columns |= {"gaze_x": diag.gaze[:, 0], "gaze_y": diag.gaze[:, 1]}
