@@ -55,7 +55,6 @@ What it shows (the numbers are printed by the run and written to
 Writes ``fit_time_constants.png``, ``estimates.csv`` and ``summary.json``.
 """
 
-import csv
 import json
 
 import jax
@@ -68,6 +67,7 @@ from common import setup  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
+from jaxadapt.io import csv_writer  # noqa: E402
 from jaxadapt.operators import pattanaik2000 as op  # noqa: E402
 from jaxadapt.physiology.response import sigma_cone, sigma_rod  # noqa: E402
 from jaxadapt.physiology.threshold import increment_sensitivity  # noqa: E402
@@ -305,7 +305,7 @@ def main():
     fig.savefig(out / "fit_time_constants.png", dpi=100)
 
     with open(out / "estimates.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["design", "observer", "parameter", "true", "estimate", "se", "converged"])
         for label, result in results.items():
             for name in designs[label][1]:

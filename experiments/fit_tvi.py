@@ -45,7 +45,6 @@ What it shows (numbers printed by the run and written to ``summary.json``):
 Writes ``fit_tvi.png``, ``fit_tvi.csv`` and ``summary.json``.
 """
 
-import csv
 import dataclasses
 import json
 
@@ -60,6 +59,7 @@ from common import setup  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from jaxadapt import fitting  # noqa: E402
+from jaxadapt.io import csv_writer  # noqa: E402
 from jaxadapt.operators import jacobs2015  # noqa: E402
 from jaxadapt.physiology import pupil  # noqa: E402
 from jaxadapt.physiology.response import (  # noqa: E402
@@ -343,7 +343,7 @@ def main():
     fig.savefig(out / "fit_tvi.png", dpi=100)
 
     with open(out / "fit_tvi.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["log10_L", "system", "data_log10", "plateau_fit_log10", "hunt_fit_log10"])
         for i, system in enumerate(RANGES):
             for j in np.flatnonzero(np.isfinite(data[i])):

@@ -28,7 +28,6 @@ Gaussian ones raise the room side's by 1.25-1.4 log units (Fig. 6.14's dark
 band), and the multiscale one, whose coarse levels cross the edge, by 1.07.
 """
 
-import csv
 import functools
 
 import jax.numpy as jnp
@@ -39,6 +38,7 @@ from scipy import ndimage
 
 from jaxadapt.color import photopic_luminance
 from jaxadapt.display import encode_srgb
+from jaxadapt.io import csv_writer
 from jaxadapt.operators import classic, goal
 from jaxadapt.scenes import OUTSIDE, ROOM, interior_with_window
 
@@ -149,7 +149,7 @@ def main():
     sides = {"room": (labels == ROOM, room), "outside": (labels == OUTSIDE, outside)}
     alone = {side: jnp.asarray(region_alone(L, region)) for side, (region, _) in sides.items()}
     with open(out / "halos.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["estimator", "halo_room_side_log10", "halo_outside_side_log10"])
         for name, estimate in estimators(scale).items():
             halos = [

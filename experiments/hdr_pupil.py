@@ -5,13 +5,12 @@ chapter quotes, and the retinal illuminance (td) each pupil lets through.
 Writes ``pupil.png`` and ``pupil.csv``.
 """
 
-import csv
-
 import jax.numpy as jnp
 import numpy as np
 from common import setup
 from matplotlib.figure import Figure
 
+from jaxadapt.io import csv_writer
 from jaxadapt.physiology import pupil
 from jaxadapt.physiology.threshold import trolands
 
@@ -38,7 +37,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "pupil.png", dpi=110)
     with open(out / "pupil.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["L_cd_m2", *(f"d_{name}_mm" for name in diameters)])
         writer.writerows(zip(10.0**log_L, *diameters.values(), strict=True))
     print(f"wrote {out}/pupil.png")

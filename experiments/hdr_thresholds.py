@@ -15,13 +15,12 @@ against 0.776, 28.44 and 1406 (``python hdr_thresholds.py``). Writes
 thresholds, cd/m2, by background luminance).
 """
 
-import csv
-
 import jax.numpy as jnp
 import numpy as np
 from common import setup
 from matplotlib.figure import Figure
 
+from jaxadapt.io import csv_writer
 from jaxadapt.physiology.response import N_HUNT, naka_rushton, naka_rushton_inverse, sigma_cone
 from jaxadapt.physiology.threshold import increment_threshold
 
@@ -89,7 +88,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "thresholds.png", dpi=110)
     with open(out / "thresholds.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(
             [
                 "L_cd_m2",

@@ -17,8 +17,6 @@ them (Ward's JND mapping, unclipped, reaches 215 times display white at the
 scene's 2e4 cd/m2 in a full run, ``python hdr_tone_curves.py``).
 """
 
-import csv
-
 import jax.numpy as jnp
 import numpy as np
 from common import setup
@@ -27,6 +25,7 @@ from matplotlib.figure import Figure
 
 from jaxadapt.color import photopic_luminance
 from jaxadapt.display import encode_srgb
+from jaxadapt.io import csv_writer
 from jaxadapt.operators import classic, goal
 from jaxadapt.scenes import interior_with_window
 
@@ -85,7 +84,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=100)
     with open(out / "curves.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["I_cd_m2", *values])
         writer.writerows(zip(10.0**log_I, *values.values(), strict=True))
     print(f"wrote {out}/tone_curves.png, curves.png, curves.csv")

@@ -6,14 +6,13 @@ dashed), the lower envelope that vision follows, and, on the right, the same
 thresholds as Weber fractions ``dI / I``. Writes ``tvi.png`` and ``tvi.csv``.
 """
 
-import csv
-
 import jax.numpy as jnp
 import numpy as np
 from common import setup
 from matplotlib.figure import Figure
 from scipy.optimize import brentq
 
+from jaxadapt.io import csv_writer
 from jaxadapt.physiology.threshold import tvi_cone, tvi_rod, tvi_rod_cone
 
 
@@ -52,7 +51,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "tvi.png", dpi=110)
     with open(out / "tvi.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["I_b_td", "dI_rod_td", "dI_cone_td", "dI_envelope_td"])
         writer.writerows(zip(10.0**log_I, *(np.asarray(c) for c in curves.values()), strict=True))
     print(f"wrote {out}/tvi.png")

@@ -7,14 +7,13 @@ would mix in the unbleached surround: the kinetics of Eqs 4-6 alone).
 Writes ``bleaching.png`` and ``bleaching.csv``.
 """
 
-import csv
-
 import numpy as np
 from common import setup
 from jacobs_common import run_scene
 from matplotlib.figure import Figure
 
 from jaxadapt import scenes
+from jaxadapt.io import csv_writer
 from jaxadapt.operators import jacobs2015 as op
 
 
@@ -52,7 +51,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "bleaching.png", dpi=110)
     with open(out / "bleaching.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["t_s", "B_L", "B_M", "B_S"])
         writer.writerows(zip(t, *B.T, strict=True))
     print(f"wrote {out}/bleaching.png")

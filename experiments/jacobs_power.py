@@ -23,7 +23,6 @@ random numbers: each cell is an unbiased estimate, and the curves are
 smooth). Writes ``power.csv``, ``power.json`` and ``power.png``.
 """
 
-import csv
 import dataclasses
 import json
 
@@ -34,6 +33,7 @@ from common import setup
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullLocator
 
+from jaxadapt.io import csv_writer
 from jaxadapt.psychophysics import design, stats
 from jaxadapt.psychophysics import fit as psyfit
 from jaxadapt.psychophysics import observer as obs
@@ -136,7 +136,7 @@ def main():
                     f"{cell['median_shift']:+.3f}, {cell['analysed']:.1f} analysed)"
                 )
     with open(out / "power.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv_writer(f, list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
     record = {

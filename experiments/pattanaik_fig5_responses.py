@@ -11,14 +11,13 @@ exponents; we read 2 10^k cd/m2 for k = -5 to 7, the same 13 levels for
 rods and cones. Writes ``fig5_responses.png`` and ``fig5_responses.csv``.
 """
 
-import csv
-
 import jax.numpy as jnp
 import matplotlib
 import numpy as np
 from common import setup
 from matplotlib.figure import Figure
 
+from jaxadapt.io import csv_writer
 from jaxadapt.physiology.response import (
     bleach_cone,
     bleach_rod,
@@ -58,7 +57,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "fig5_responses.png", dpi=110)
     with open(out / "fig5_responses.csv", "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(["receptor", "A_cd_m2", "sigma_cd_m2", "B", "R_white"])
         writer.writerows(rows)
     print(f"wrote {out}/fig5_responses.png")

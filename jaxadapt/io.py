@@ -364,8 +364,10 @@ def _colour_part(image, path):
 
 
 def _one_line(message):
-    """An OpenImageIO error message, whose lines may be several, as one line."""
-    return "; ".join(line.strip() for line in message.splitlines() if line.strip())
+    """An OpenImageIO error message, whose lines may be several, as one line,
+    each line once (a truncated EXR's header error came three times)."""
+    lines = (line.strip() for line in message.splitlines())
+    return "; ".join(dict.fromkeys(line for line in lines if line))
 
 
 def _radiance_header(path):
@@ -647,6 +649,15 @@ def video_writer(path, fps, encoding="srgb"):
                 fail()
 
 
+def csv_writer(file, fieldnames=None):
+    """A ``csv`` writer on ``file`` (a ``DictWriter`` with ``fieldnames``)
+    that ends its lines with LF: the csv module's default, CRLF, shows as a
+    stray ``\\r`` in Unix tools (``cut``, ``awk``) and in diffs."""
+    if fieldnames is None:
+        return csv.writer(file, lineterminator="\n")
+    return csv.DictWriter(file, fieldnames=fieldnames, lineterminator="\n")
+
+
 def write_columns(path, table):
     """Write the 1-D columns of ``table`` (a dict of equal-length arrays) as CSV.
 
@@ -657,6 +668,6 @@ def write_columns(path, table):
     columns = [name for name, column in table.items() if np.ndim(column) == 1]
     rows = zip(*(table[name] for name in columns), strict=True)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
-        writer = csv.writer(f)
+        writer = csv_writer(f)
         writer.writerow(columns)
         writer.writerows([f"{value:.6g}" for value in row] for row in rows)

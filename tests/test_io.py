@@ -485,3 +485,16 @@ def test_a_truncated_pfm_is_refused_in_one_line(tmp_path):
     path.write_bytes(path.read_bytes()[:-4])
     with pytest.raises(ValueError, match=r"cut.pfm: cannot read pixels \(expected \d+ bytes"):
         io.read_hdr(path)
+
+
+@pytest.mark.parametrize("keep", [40, 200])
+def test_a_truncated_exr_header_is_said_once(tmp_path, keep):
+    # OpenImageIO reported the cut header three times, joined into one line.
+    path = tmp_path / "cut.exr"
+    io.write_image(path, _gradient())
+    path.write_bytes(path.read_bytes()[:keep])
+    with pytest.raises(ValueError, match=r"cut.exr: ") as caught:
+        io.read_hdr(path)
+    parts = str(caught.value).split("; ")
+    assert len(parts) == len(set(parts)), str(caught.value)
+    assert "\n" not in str(caught.value)

@@ -288,6 +288,11 @@ def test_padding_groups_and_optional_group_columns(tmp_path):
             [["participant", "condition", "level", "n_yes"], ["p", "c", 0, 1]],
             "missing column 'n_total'",
         ),
+        # no header: its first row's data, lower-cased, were said as column names
+        (
+            [["P1", "control", -0.2, 1], ["P1", "control", 0.2, 0]],
+            "expected a header row naming the columns .* got the row P1, control, -0.2, 1$",
+        ),
         ([HEADER + ["n_yes"], ["p", "c", 0, 1, 1]], "either a 'response' column"),
         ([HEADER + ["n_total"], ["p", "c", 0, 1, 9]], "either a 'response' column"),
         (

@@ -69,7 +69,6 @@ judgment*, Psychological Review 34. Wichmann, Hill (2001), *The
 psychometric function I*, Perception & Psychophysics 63 (lapses).
 """
 
-import csv
 import dataclasses
 from typing import NamedTuple
 
@@ -1049,7 +1048,7 @@ def write_trials(path, protocol, experiment):
     appears only once complete. Returns the number of rows."""
     table = trial_table(protocol, experiment)
     with io.atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
-        writer = csv.writer(file)
+        writer = io.csv_writer(file)
         writer.writerow(table)
         for row in zip(*table.values(), strict=True):
             writer.writerow([trial_tables.csv_cell(v) for v in row])

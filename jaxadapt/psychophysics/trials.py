@@ -36,7 +36,7 @@ from jax.scipy.special import ndtri
 from scipy.optimize import brentq, minimize_scalar
 from scipy.special import log_ndtr
 
-from jaxadapt.io import atomic_path
+from jaxadapt.io import atomic_path, csv_writer
 from jaxadapt.psychophysics import fit as psyfit
 
 #: Columns of a trial table with one row per trial.
@@ -156,12 +156,29 @@ def _header(path, header):
         formats = [
             [c for c in f if c not in OPTIONAL_COLUMNS] for f in (TRIAL_COLUMNS, COUNT_COLUMNS)
         ]
-        raise ValueError(
-            f"{path}: missing column '{missing[0]}' (expected the columns "
+        expected = (
             f"{', or '.join(_listed(f) for f in formats)}, and optionally "
-            f"{_listed(OPTIONAL_COLUMNS)}; got {', '.join(columns)})"
+            f"{_listed(OPTIONAL_COLUMNS)}"
+        )
+        if any(_is_number(cell) for cell in header):  # data where the names belong
+            raise ValueError(
+                f"{path}: expected a header row naming the columns ({expected}), got the "
+                f"row {', '.join(cell.strip() for cell in header)}"
+            )
+        raise ValueError(
+            f"{path}: missing column '{missing[0]}' (expected the columns {expected}; "
+            f"got {', '.join(cell.strip() for cell in header)})"
         )
     return {c: columns.index(c) for c in required if c in columns}
+
+
+def _is_number(text):
+    """Whether ``text`` reads as a number (``float`` takes it)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _listed(names):
@@ -585,7 +602,7 @@ def write_fits(path, table):
     appears only once complete (:func:`jaxadapt.io.atomic_path`).
     """
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
-        writer = csv.writer(file)
+        writer = csv_writer(file)
         writer.writerow(FIT_COLUMNS)
         for row in zip(*table, strict=True):
             cells = zip(FIT_COLUMNS, row, strict=True)
