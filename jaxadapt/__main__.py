@@ -1,3 +1,3 @@
-from jaxadapt.cli import run
+from jaxadapt._program import run
 
 run()

@@ -14,7 +14,6 @@ and the line says so.
 
 import argparse
 import contextlib
-import csv
 import errno
 import importlib.metadata
 import inspect
@@ -31,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxadapt import runtime
+from jaxadapt._program import INTERRUPTED, take_signals
 
 FORMATS = ("png", "mp4", "exr", "pfm")
 OPERATORS = (
@@ -143,15 +143,29 @@ class _Parser(argparse.ArgumentParser):
         """The arguments parsed; arguments that no option takes are said with
         the help of the command they were given to (``jaxadapt render
         --help``), not the program's, which lists only the commands."""
-        parsed, extras = self.parse_known_args(args, namespace)
+        argv = _negative_values_joined(list(sys.argv[1:] if args is None else args))
+        parsed, extras = self.parse_known_args(argv, namespace)
         if extras:
-            argv = list(sys.argv[1:] if args is None else args)
             before = argv[: argv.index(extras[0])] if extras[0] in argv else argv
             # the command words the first of them follows (none: the program's)
             words = [getattr(parsed, dest, None) for dest in ("command", "action")]
             command = " ".join([self.prog, *(w for w in words if w and w in before)])
             self.error(f"unrecognized arguments: {' '.join(extras)}", command)
         return parsed
+
+
+def _negative_values_joined(argv):
+    """``argv`` with ``--option -VALUE`` written ``--option=-VALUE`` where the
+    value starts with a minus and a digit: argparse takes ``-64x36`` (not a
+    plain number) for an option and said "expected one argument" for
+    ``--size -64x36``; joined, the option's own check says what is wrong."""
+    joined = []
+    for arg in argv:
+        if joined and re.match(r"--[^=]+$", joined[-1]) and re.match(r"-\d", arg):
+            joined[-1] = f"{joined[-1]}={arg}"
+        else:
+            joined.append(arg)
+    return joined
 
 
 def _folder(text):
@@ -364,6 +378,12 @@ def build_parser():
         type=int,
         default=None,
         help="frames computed per call (default: as many as --memory allows, at most 32)",
+    )
+    render.add_argument(
+        "--allow-large",
+        action="store_true",
+        help=f"render even more than {MAX_FRAMES:,} frames, or more than the free space of "
+        "--out may hold (refused by default, with the estimate)",
     )
     render.add_argument(
         "--memory",
@@ -706,6 +726,47 @@ def _check_options(args):
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
 
 
+#: The most frames a render writes without --allow-large: 55 minutes at 30 frames/s.
+MAX_FRAMES = 100_000
+#: Bytes a pixel of a frame takes at most in each output format (PNG: 8 bits a
+#: channel before compression; EXR and PFM: float32; MP4: a generous bound
+#: of H.264 at the quality written).
+BYTES_PER_PIXEL = {"png": 3, "exr": 12, "pfm": 12, "mp4": 0.1}
+
+
+def _check_work(frames, shape, formats, out, frames_from):
+    """Refuse a render of more than :data:`MAX_FRAMES` frames, or whose
+    outputs could outgrow the free space of ``out``'s device (an upper bound
+    from :data:`BYTES_PER_PIXEL`): a UsageError with the estimate and the
+    option that goes ahead. A render at 1e6 frames/s staged 840,000 files
+    in 10 minutes on its way to 80 GB, more than the disk held."""
+    H, W = shape
+    size = frames * H * W * sum(BYTES_PER_PIXEL[f] for f in formats)
+    existing = next(p for p in [out.resolve(), *out.resolve().parents] if p.exists())
+    free = shutil.disk_usage(existing).free
+    work = f"{frames:,} frames of {W}x{H} as {', '.join(formats)}, up to {_bytes(size)}"
+    if frames > MAX_FRAMES:
+        raise UsageError(
+            f"{frames_from}: the render would write {work}, more than {MAX_FRAMES:,} "
+            "frames; render fewer, or pass --allow-large to go ahead"
+        )
+    if size > free:
+        raise UsageError(
+            f"--out: the render would write {work}, more than the {_bytes(free)} free on "
+            f"the device of {out}; free space, choose another --out or fewer frames, or "
+            "pass --allow-large to go ahead"
+        )
+
+
+def _bytes(n):
+    """``n`` bytes in the largest unit that keeps a number of at least 1."""
+    for unit in ("bytes", "kB", "MB", "GB"):
+        if n < 1000:
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} TB"
+
+
 def _check_scale_fits(scale, size):
     """Refuse a ``--background-scale`` beyond the larger side of frames of
     ``size (H, W)``, pixels: a window larger than the frame covers the
@@ -784,9 +845,17 @@ def _warn_gaze_off_frame(source, shape, path, console):
     of ``shape`` (H, W): the operators take the nearest point of the frame
     (:func:`jaxadapt.operators.goal.fixation`), and a recording in other
     coordinates (normalised, or a larger screen's) would be held at the
-    frame's edges without a word."""
+    frame's edges without a word; and when it holds no fixation at all, for
+    which the frame's centre is taken."""
     H, W = shape
     x, y = source.gaze(np.arange(len(source.times))).T
+    if not np.isfinite(x).any():
+        console.print(
+            f"warning: --gaze: {path} holds no fixation during the sequence (every sample "
+            "before its end is a blink, x and y empty or nan); the frame's centre is taken",
+            markup=False,
+            soft_wrap=True,
+        )
     off = (x < 0) | (x > W - 1) | (y < 0) | (y > H - 1)  # False for a blink's NaN
     if off.any():
         i = int(np.argmax(off))
@@ -840,9 +909,10 @@ def _operator(args, source, fps):
         from jaxadapt.operators import jacobs2015 as op
 
         title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
-        plot = partial(figures.plot_columns, title=title)
-        blur = op.blur_for_display(ppd, fps)
-        return op, op.Params(pixels_per_degree=ppd, afterimage_blur=blur), plot, True
+        params = op.Params(pixels_per_degree=ppd, afterimage_blur=op.blur_for_display(ppd, fps))
+        notes = op.diagnostics_notes(params)
+        plot = partial(figures.plot_columns, title=title, units=op.DIAGNOSTIC_UNITS, notes=notes)
+        return op, params, plot, True
     from jaxadapt.operators import classic
 
     params = classic.Params(
@@ -851,7 +921,8 @@ def _operator(args, source, fps):
         args.background_scale or BACKGROUND_SCALE,
     )
     title = f"{source.name}: {args.operator}, {args.background} background"
-    return classic, params, partial(figures.plot_columns, title=title), False
+    plot = partial(figures.plot_columns, title=title, units=classic.DIAGNOSTIC_UNITS)
+    return classic, params, plot, False
 
 
 def render(args, console):
@@ -889,9 +960,12 @@ def render(args, console):
     contact_idx = set(range(min(4, T))) | set(
         np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
     )
-    contact, tables = [], []
+    contact, contact_labels, tables = [], [], []
     inputs = [*args.files, *([args.gaze] if args.gaze else [])]
     with _staged(out, console, RENDER_OUTPUTS, keep=inputs) as staging:
+        if not args.allow_large:  # once --out is known to be writable
+            frames_from = "FILE" if args.files else "--fps, --duration"
+            _check_work(T, pipeline.frame_shape(source), formats, out, frames_from)
         with contextlib.ExitStack() as stack:
             send_video = (
                 stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
@@ -911,6 +985,7 @@ def render(args, console):
                     coded = display.encode_uint8(linear, code_as)
                 for k in shown:  # shrunk in linear light, then encoded
                     contact.append(display.encode_uint8(figures.shrink(linear[k]), code_as))
+                    contact_labels.append(f"{source.times[idx[k]]:.3g} s")
                 for k, i in enumerate(idx):
                     name = f"frame_{i:0{digits}d}"
                     if "png" in formats:
@@ -932,7 +1007,7 @@ def render(args, console):
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
-        sheet = figures.contact_sheet(np.stack(contact))
+        sheet = figures.contact_sheet(np.stack(contact), labels=contact_labels)
         io.write_image(staging / "contact_sheet.png", sheet, encoding)
         plot(staging / "adaptation.png", table)
         names = sorted(path.name for path in staging.iterdir())
@@ -940,9 +1015,8 @@ def render(args, console):
     others = [name for name in names if not name.startswith("frame_")]
     if frame_files:
         others.append(f"{len(frame_files)} frame file{'s' * (len(frame_files) > 1)}")
-    console.print(
-        f"wrote {len(names)} files to {out}/ ({', '.join(others)}) for {T} frame{'s' * (T > 1)}",
-        soft_wrap=True,
+    _report(
+        f"wrote {len(names)} files to {out}/ ({', '.join(others)}) for {T} frame{'s' * (T > 1)}"
     )
 
 
@@ -1024,7 +1098,7 @@ def psychometric_fit(args, console):
     import jax
     from rich.progress import Progress
 
-    from jaxadapt import figures
+    from jaxadapt import figures, io
     from jaxadapt.psychophysics import stats, trials
 
     if args.resamples < 0 or args.resamples == 1:
@@ -1090,24 +1164,29 @@ def psychometric_fit(args, console):
         trials.write_fits(staging / "fits.csv", table)
         if rows:
             with open(staging / "group_test.csv", "w", newline="") as f:
-                writer = csv.DictWriter(f, fieldnames=GROUP_TEST_COLUMNS)
+                writer = io.csv_writer(f, GROUP_TEST_COLUMNS)
                 writer.writeheader()
                 writer.writerows(rows)
         figures.plot_psychometric(staging / "psychometric.png", groups, table)
         figures.plot_pse(staging / "pse.png", table, rows)
     for row in rows:
-        console.print(
+        _report(
             f"{row['condition']} vs {row['control']}: median PSE {_signed(row['median'])} vs "
             f"{_signed(row['median_control'])} log units, rank-sum p = {row['p']:.3g} "
             f"({'exact' if row['p_exact'] == 'true' else 'normal approximation'}; "
             f"n = {row['n']}, {row['n_control']})"
         )
-    console.print(f"wrote {', '.join(written)} to {out}/", soft_wrap=True)
+    _report(f"wrote {', '.join(written)} to {out}/")
 
 
 def _signed(value, digits=3):
     """``value`` with its sign and ``digits`` decimals, 0 as ``+0.000`` (not ``-0.000``)."""
     return f"{round(value, digits) + 0.0:+.{digits}f}"
+
+
+#: Groups named one by one in the warnings of :func:`_warn_undetermined`: a
+#: table of 10,000 groups wrote thousands of lines.
+MAX_GROUP_WARNINGS = 10
 
 
 def _warn_undetermined(console, groups, table, kept, tested):
@@ -1122,7 +1201,13 @@ def _warn_undetermined(console, groups, table, kept, tested):
 
     flags = np.asarray(table.flags)
     written = "are its prior's, not the data's" if kept else "are NaN"
-    for i in np.flatnonzero(undetermined(flags)):
+    groups_open = np.flatnonzero(undetermined(flags))
+    if len(groups_open) > MAX_GROUP_WARNINGS:
+        console.print(
+            f"warning: the data of {len(groups_open)} groups do not determine their fit; "
+            f"the first {MAX_GROUP_WARNINGS} follow, the flags of all are in fits.csv"
+        )
+    for i in groups_open[:MAX_GROUP_WARNINGS]:
         who = f"participant {table.participant[i]}, condition {table.condition[i]}"
         low, high = table.pse_low[i], table.pse_high[i]
         if flags[i] & psyfit.NO_PSE:
@@ -1183,6 +1268,7 @@ def psychometric_simulate(args, console):
 
     import jax
 
+    from jaxadapt import io
     from jaxadapt.psychophysics import design
     from jaxadapt.psychophysics import observer as obs
     from jaxadapt.psychophysics.trials import csv_cell
@@ -1197,33 +1283,34 @@ def psychometric_simulate(args, console):
     population = dataclasses.replace(
         obs.POPULATIONS[args.protocol], weights=_weights(args.weight, obs.CUES)
     )
-    render_key, simulate_key = jax.random.split(jax.random.key(args.seed))
-    stimuli = obs.render_stimuli(protocol, key=render_key)
-    experiment = obs.simulate(simulate_key, protocol, stimuli, population, args.observers)
-    pse = np.asarray(jax.vmap(lambda o: obs.true_pse(stimuli, o))(experiment.observers))
-    observers = {
-        "participant": obs.participant_names(args.observers),
-        **{
-            name: np.asarray(getattr(experiment.observers, name))
-            for name in ("noise", "bias", "order_bias", "lapse")
-        },
-        **{
-            f"weight_{cue}": np.asarray(experiment.observers.weights[:, i])
-            for i, cue in enumerate(obs.CUES)
-        },
-        **{f"pse_{c}": pse[:, i] for i, c in enumerate(protocol.conditions)},
-        "excluded": np.asarray(experiment.excluded),
-    }
-    d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
+    # --out is checked (and staged) before the minutes of simulating
     with _staged(args.out, console) as staging:
+        render_key, simulate_key = jax.random.split(jax.random.key(args.seed))
+        stimuli = obs.render_stimuli(protocol, key=render_key)
+        experiment = obs.simulate(simulate_key, protocol, stimuli, population, args.observers)
+        pse = np.asarray(jax.vmap(lambda o: obs.true_pse(stimuli, o))(experiment.observers))
+        observers = {
+            "participant": obs.participant_names(args.observers),
+            **{
+                name: np.asarray(getattr(experiment.observers, name))
+                for name in ("noise", "bias", "order_bias", "lapse")
+            },
+            **{
+                f"weight_{cue}": np.asarray(experiment.observers.weights[:, i])
+                for i, cue in enumerate(obs.CUES)
+            },
+            **{f"pse_{c}": pse[:, i] for i, c in enumerate(protocol.conditions)},
+            "excluded": np.asarray(experiment.excluded),
+        }
+        d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
         n_rows = obs.write_trials(staging / "trials.csv", protocol, experiment)
         with open(staging / "observers.csv", "w", newline="") as f:
-            writer = csv.writer(f)
+            writer = io.csv_writer(f)
             writer.writerow(observers)
             for row in zip(*observers.values(), strict=True):
                 writer.writerow([csv_cell(v) for v in row])
         with open(staging / "stimuli.csv", "w", newline="") as f:
-            writer = csv.writer(f)
+            writer = io.csv_writer(f)
             writer.writerow(
                 ["condition", "level", "d_log_luminance", *(f"d_{c}" for c in obs.CUES)]
             )
@@ -1232,7 +1319,7 @@ def psychometric_simulate(args, console):
                     cells = [level, d_lum[c, i], *d_cues[c, i]]
                     writer.writerow([condition, *(csv_cell(v) for v in cells)])
     excluded = int(np.sum(experiment.excluded))
-    console.print(
+    _report(
         f"{args.protocol}: {args.observers} observers, {excluded} excluded (training below "
         f"{protocol.exclusion:.0%} correct); wrote trials.csv ({n_rows} trials), "
         f"observers.csv, stimuli.csv to {args.out}/"
@@ -1240,29 +1327,44 @@ def psychometric_simulate(args, console):
 
 
 def main(argv=None):
+    """Run the command of ``argv`` (by default the command line's); return its
+    exit status. Signals interrupt it from the parsing of its arguments to
+    its last line (:func:`_interruptible`): the one line of
+    :data:`~jaxadapt._program.INTERRUPTED` and the shell's status,
+    128 + the signal; 0 once the outputs are all in place."""
+    try:
+        with _interruptible():
+            return _command(argv)
+    except KeyboardInterrupt as e:
+        if _WRITTEN.is_set():  # only a handler restored after the run can raise here
+            return 0
+        with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
+            print(INTERRUPTED, file=sys.stderr)
+        return 128 + (e.args[0] if e.args else signal.SIGINT)
+
+
+def _command(argv):
+    """Parse ``argv`` and run its command; its errors as one line and status 2."""
     from rich.console import Console
 
     parser = build_parser()
     args = parser.parse_args(argv)
     runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
     runtime.cache_compilations()  # later runs reuse this one's compiled programs
-    console = Console(stderr=True)
+    # Warnings and progress on stderr, never wrapped inside a number or a path
+    console = Console(stderr=True, soft_wrap=True)
     import equinox as eqx
     import jax
 
+    if _SIGNALLED:  # an interrupt that a garbage-collector callback swallowed
+        raise KeyboardInterrupt(_SIGNALLED[0])
     try:
-        with _interruptible():
-            if args.command == "render":
-                render(args, console)
-            elif args.command == "psychometric" and args.action == "simulate":
-                psychometric_simulate(args, console)
-            elif args.command == "psychometric":
-                psychometric_fit(args, console)
-    except KeyboardInterrupt as e:
-        done = "every output was" if _WRITTEN.is_set() else "nothing was"
-        with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
-            print(f"jaxadapt: interrupted; {done} written to --out", file=sys.stderr)
-        return 128 + (e.args[0] if e.args else signal.SIGINT)
+        if args.command == "render":
+            render(args, console)
+        elif args.command == "psychometric" and args.action == "simulate":
+            psychometric_simulate(args, console)
+        elif args.command == "psychometric":
+            psychometric_fit(args, console)
     except MemoryError:
         print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)
         return 2
@@ -1281,22 +1383,32 @@ def main(argv=None):
 
 
 def run():
-    """The program: :func:`main` on the command line's arguments, then exit
-    with its status.
+    """The command line's program: :func:`main` on its arguments, then exit
+    with its status (see :func:`jaxadapt._program.run`, which calls it).
 
-    An interrupted run leaves through ``os._exit``, once :func:`main` has
+    Signals that come after :func:`main` has returned are remembered and
+    dropped: its status stands (one that reached Python's exit handlers
+    printed an "Exception ignored in atexit callback" traceback). An
+    interrupted run leaves through ``os._exit``, once :func:`main` has
     cleaned up and said so: the computation it interrupted may still be
     running on XLA's threads, and Python's finalisation, which frees what
     they use, crashed 3 of 8 runs sent SIGTERM during a bootstrap ("pure
     virtual method called", "corrupted size vs. prev_size", a segmentation
     fault: status 134 or 139 instead of 143).
     """
+    take_signals(lambda signum, frame: _SIGNALLED.append(signum))  # main's restore these
     status = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
     if _SIGNALLED:
-        sys.stdout.flush()
-        sys.stderr.flush()
         os._exit(status)
     sys.exit(status)
+
+
+def _report(line):
+    """Print a line of a command's result (what it wrote, the group test) on
+    stdout, as Unix tools do: warnings, progress and errors go to stderr."""
+    print(line, flush=True)
 
 
 def _smaller(args):
@@ -1306,11 +1418,6 @@ def _smaller(args):
     return {"fit": "fewer --resamples", "simulate": "fewer --observers"}[args.action]
 
 
-#: The signals that interrupt a command: Ctrl-C, a scheduler's SIGTERM, a
-#: closed terminal's SIGHUP (where the platform has it).
-_SIGNALS = tuple(
-    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
-)
 #: Signals received while a command ran (:func:`_interruptible`).
 _SIGNALLED = []
 #: Set while signals are held back (:func:`_signals_deferred`).
@@ -1326,22 +1433,26 @@ def _signals_deferred():
     the body has completed (an error of the body goes first). Moving the
     files of a long render into ``--out`` takes a while, and an interrupt
     in it left some of the outputs of the new run beside the rest of the
-    old one's; one in the removal of a staging folder left the folder."""
+    old one's; one in the removal of a staging folder left the folder. Once
+    the outputs are all in place (:data:`_WRITTEN`) the run has succeeded,
+    and a signal held back is dropped."""
     before = len(_SIGNALLED)
     _DEFERRING.set()
     try:
         yield
     finally:
         _DEFERRING.clear()
-    if len(_SIGNALLED) > before:
+    if len(_SIGNALLED) > before and not _WRITTEN.is_set():
         raise KeyboardInterrupt(_SIGNALLED[before])
 
 
 @contextlib.contextmanager
 def _interruptible():
-    """While the body runs, the signals of :data:`_SIGNALS` raise
-    ``KeyboardInterrupt(signum)`` (unless deferred: :func:`_signals_deferred`)
-    and are remembered in :data:`_SIGNALLED`.
+    """While the body runs, the signals of :data:`jaxadapt._program.SIGNALS`
+    raise ``KeyboardInterrupt(signum)`` (unless deferred,
+    :func:`_signals_deferred`, or once the outputs are all in place,
+    :data:`_WRITTEN`: the run has succeeded) and are remembered in
+    :data:`_SIGNALLED`.
 
     By default SIGTERM and SIGHUP end Python at once and the staging folder would stay
     in ``--out``; raised as an interrupt, the run cleans up as a failed one.
@@ -1358,16 +1469,12 @@ def _interruptible():
 
     def interrupt(signum, frame):
         _SIGNALLED.append(signum)
-        if not _DEFERRING.is_set():
+        if not (_DEFERRING.is_set() or _WRITTEN.is_set()):
             raise KeyboardInterrupt(signum)
 
     _SIGNALLED.clear()
     _WRITTEN.clear()
-    previous = {
-        s: signal.signal(s, interrupt)
-        for s in _SIGNALS
-        if signal.getsignal(s) is not signal.SIG_IGN
-    }
+    previous = take_signals(interrupt)
     try:
         yield
     finally:

@@ -47,6 +47,7 @@ def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, 
     out = tmp_path / "out"
     status, _ = _run(capsys, "render", "--scene", "title-step", *SMALL, "--out", str(out))
     assert status == 0
+    assert b"\r" not in (out / "diagnostics.csv").read_bytes()  # LF line ends
     names = {p.name for p in out.iterdir()}
     assert {"video.mp4", "contact_sheet.png", "adaptation.png", "diagnostics.csv"} <= names
     assert len([n for n in names if n.startswith("frame_")]) == 10
@@ -157,6 +158,41 @@ def test_bad_values_leave_earlier_output_untouched(tmp_path, capsys):
     _assert_one_line_error(status, err, "b.exr", "non-negative")
     assert [p.name for p in out.iterdir()] == ["frame_00000.png"]
     assert (out / "frame_00000.png").read_bytes() == b"earlier result"
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        # argparse took -64x36 for an option: "expected one argument"
+        (["--size", "-64x36"], ("--size", "at least 2x2", "'-64x36'")),
+        (["--size", "64x-36"], ("--size", "at least 2x2", "'64x-36'")),
+        (["--fps", "-5"], ("--fps",)),
+    ],
+)
+def test_negative_values_get_the_options_own_message(tmp_path, capsys, argv, words):
+    with pytest.raises(SystemExit) as exit:
+        main(["render", *argv, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    _assert_one_line_error(exit.value.code, err, *words)
+    assert "expected one argument" not in err
+
+
+def test_a_render_larger_than_the_limit_or_the_disk_is_refused(tmp_path, capsys, monkeypatch):
+    # 20 million frames at --fps 1e6 were accepted: hours and about 80 GB.
+    out = tmp_path / "o"
+    args = ["render", "--size", "64x36", "--fps", "1e6", "--out", str(out)]
+    status, err = _run(capsys, *args)
+    _assert_one_line_error(status, err, "--fps, --duration", "20,000,000 frames", "--allow-large")
+    assert not out.exists()
+    # Frames that fit the limit but not the disk: the estimate and the free space.
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(cli.shutil, "disk_usage", lambda path: usage._replace(free=10**4))
+    args = ["render", "--scene", "flash", *SMALL, "--format", "pfm", "--out", str(out)]
+    status, err = _run(capsys, *args)
+    _assert_one_line_error(status, err, "--out", "more than the 10 kB free", "--allow-large")
+    assert not out.exists()
+    status, err = _run(capsys, *args, "--allow-large")
+    assert status == 0, err
 
 
 def test_frames_of_different_sizes(tmp_path, capsys):
@@ -323,7 +359,7 @@ def test_a_folder_named_as_an_output_is_refused_before_the_render(tmp_path, caps
     assert [p.name for p in out.iterdir()] == ["video.mp4"]
 
 
-def test_a_signal_while_the_outputs_move_waits_until_they_all_have(tmp_path, capsys, monkeypatch):
+def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(tmp_path, capsys, monkeypatch):
     # A SIGINT after the first of the moves into --out left the new run's
     # first files beside the rest of the earlier run's, and the message said
     # that nothing was written.
@@ -340,12 +376,12 @@ def test_a_signal_while_the_outputs_move_waits_until_they_all_have(tmp_path, cap
 
     interrupted_replace.sent = False
     monkeypatch.setattr(Path, "replace", interrupted_replace)
-    with pytest.raises(KeyboardInterrupt) as caught:
-        with cli._interruptible(), cli._staged(out, None) as staging:
-            for name in ("a.csv", "b.csv", "c.csv"):
-                (staging / name).write_text("new")
-    assert cli._WRITTEN.is_set()  # main says "every output was written to --out"
-    assert caught.value.args == (signal.SIGINT,)
+    with cli._interruptible(), cli._staged(out, None) as staging:
+        for name in ("a.csv", "b.csv", "c.csv"):
+            (staging / name).write_text("new")
+    # Once all are in place the run has succeeded: the signal is dropped
+    # (it raised after the move, and the run said it was interrupted).
+    assert cli._WRITTEN.is_set() and cli._SIGNALLED == [signal.SIGINT]
     assert {p.name: p.read_text() for p in out.iterdir()} == dict.fromkeys(
         ("a.csv", "b.csv", "c.csv"), "new"
     )
@@ -432,7 +468,10 @@ def test_a_full_device_is_said_when_the_writer_gives_no_errno(tmp_path, capsys, 
     usage = shutil.disk_usage
     monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(path)._replace(free=0))
     out = tmp_path / "out"
-    status, err = _run(capsys, "render", "--scene", "flash", *SMALL, "--out", str(out))
+    # (--allow-large: the writer, not the estimate up front, meets the full device)
+    status, err = _run(
+        capsys, "render", "--scene", "flash", *SMALL, "--allow-large", "--out", str(out)
+    )
     _assert_one_line_error(status, err, "--out: no space left on the device of", str(out))
 
 
@@ -693,6 +732,21 @@ def test_a_blink_in_the_gaze_holds_the_fixation_for_pattanaik2000(tmp_path, caps
         )
 
 
+def test_a_gaze_file_of_blinks_alone_is_warned_about(tmp_path, capsys):
+    # Every sample a blink: the frame's centre was used without a word.
+    gaze = tmp_path / "gaze.csv"
+    gaze.write_text("t,x,y\n0,nan,nan\n")
+    args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "0.2"]
+    args += ["--adaptation-goal", "foveal", "--format", "pfm"]
+    status, err = _run(capsys, *args, "--gaze", str(gaze), "--out", str(tmp_path / "o"))
+    assert status == 0, err
+    said = " ".join(err.split())
+    assert "warning: --gaze:" in said and "holds no fixation" in said, said
+    gaze.write_text("t,x,y\n0,nan,nan\n0.1,5,4\n")  # one fixation: no warning
+    status, err = _run(capsys, *args, "--gaze", str(gaze), "--out", str(tmp_path / "o"))
+    assert status == 0 and "fixation" not in err, err
+
+
 def test_bad_gaze_file_is_named(tmp_path, capsys):
     gaze = tmp_path / "gaze.csv"
     gaze.write_text("t,x,y\n0,5\n")
@@ -798,6 +852,41 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert "p5, condition dark: the responses change at one level" in said
     assert said.count("warning") == 3, said
     assert "its PSE and slope in fits.csv are NaN" in said
+
+
+def test_many_undetermined_groups_are_counted_not_listed(tmp_path, capsys):
+    # 10,000 groups of simulated data wrote a warning line for each that
+    # the data did not determine: thousands of lines.
+    rows = ["participant,condition,level,n_yes,n_total"]
+    rows += [f"p{i},control,{x},{k},10" for i in range(12) for x, k in ((0.0, 10), (0.1, 10))]
+    status, err = _fit_rows(capsys, rows, tmp_path / "o", "--resamples", "0")
+    assert status == 0, err
+    lines = err.splitlines()
+    assert any(line.startswith("warning: the data of 12 groups do not determine") for line in lines)
+    assert sum(line.startswith("warning: participant") for line in lines) == 10
+
+
+def test_results_on_stdout_warnings_on_stderr_csvs_with_lf(tmp_path, capsys):
+    # Every summary went to stderr with the warnings; the console wrapped
+    # lines at 80 columns, inside numbers ("p = \\n0.371"); CSVs had CRLF ends.
+    levels = np.linspace(-0.3, 0.3, 5)
+    rows = ["participant,condition,level,n_yes,n_total", "p0,control,0.0,10,10"]
+    rows += _simulated_rows(range(1, 5), (("control", 0.0), ("bright", 0.1)), levels, 0.1, 3)
+    folder = tmp_path / "a-folder-with-a-long-name-that-pushes-the-summary-past-eighty-columns"
+    folder.mkdir()
+    (folder / "trials.csv").write_text("\n".join(rows) + "\n")
+    argv = ["psychometric", "fit", str(folder / "trials.csv"), "--resamples", "0"]
+    status = main([*argv, "--out", str(folder)])
+    said = capsys.readouterr()
+    assert status == 0
+    lines = said.out.splitlines()
+    assert lines[0].startswith("bright vs control: median PSE") and "rank-sum p = " in lines[0]
+    assert lines[1].startswith("wrote fits.csv") and str(folder) in lines[1]
+    assert len(lines) == 2 and len(lines[1]) > 80  # not wrapped
+    assert said.err.startswith("warning: participant p0, condition control")
+    assert len(said.err.splitlines()) == 2  # the warning and the note, one line each
+    for name in ("fits.csv", "group_test.csv"):
+        assert b"\r" not in (folder / name).read_bytes(), name
 
 
 def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
@@ -1076,6 +1165,22 @@ def norm_cdf(z):
     return ndtr(z)
 
 
+def test_psychometric_simulate_checks_out_before_simulating(tmp_path, capsys, monkeypatch):
+    # An --out that is a file was refused after 11 s of simulating.
+    from jaxadapt.psychophysics import observer
+
+    def simulated(*args, **kwargs):
+        pytest.fail("simulated before --out was checked")
+
+    monkeypatch.setattr(observer, "render_stimuli", simulated)
+    target = tmp_path / "a-file"
+    target.write_text("kept")
+    args = ["psychometric", "simulate", "--protocol", "afterimage", "--observers", "2"]
+    status, err = _run(capsys, *args, "--out", str(target))
+    _assert_one_line_error(status, err, "--out", "a-file")
+    assert target.read_text() == "kept"
+
+
 def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
     sim, out = tmp_path / "sim", tmp_path / "fit"
     args = ["psychometric", "simulate", "--protocol", "afterimage", "--observers", "6"]
@@ -1083,6 +1188,8 @@ def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
         capsys, *args, "--weight", "afterimage=0.3", "--seed", "1", "--out", str(sim)
     )
     assert status == 0, err
+    for name in ("trials.csv", "observers.csv", "stimuli.csv"):
+        assert b"\r" not in (sim / name).read_bytes(), name  # LF line ends
     observers = list(csv.DictReader(open(sim / "observers.csv")))
     assert len(observers) == 6 and all(float(o["weight_afterimage"]) == 0.3 for o in observers)
     included = [o["participant"] for o in observers if o["excluded"] == "false"]
@@ -1205,6 +1312,61 @@ def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
     assert err.strip().splitlines()[-1] == "jaxadapt: interrupted; nothing was written to --out"
     assert "Traceback" not in err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("delay", [0.3, 1.0])
+def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
+    # Sent while the program imports JAX and parses its arguments, before
+    # any command runs: a 30-line traceback, where the line and the status
+    # of an interrupted run are due.
+    out = tmp_path / "o"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxadapt", "render", "--scene", "flash", *SMALL, "--out", str(out)],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    time.sleep(delay)
+    process.send_signal(signal.SIGINT)
+    err = process.communicate(timeout=120)[1]
+    assert process.returncode == 128 + signal.SIGINT, err
+    assert err.splitlines() == ["jaxadapt: interrupted; nothing was written to --out"]
+    assert not out.exists()
+
+
+def test_a_signal_after_the_command_leaves_its_status(tmp_path):
+    # A signal as the program exits (here: as its command returns) reached
+    # Python's exit handlers: 'Exception ignored in atexit callback' and a
+    # traceback, or status 130 after a run that had written everything.
+    code = (
+        "import os, signal; from jaxadapt import cli\n"
+        "def main():\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    return 0\n"
+        "cli.main = main\n"
+        "cli.run()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert (done.returncode, done.stderr) == (0, "")
+
+
+def test_a_signal_after_the_outputs_are_in_place_is_a_success(tmp_path, capsys, monkeypatch):
+    # The outputs all moved into --out, then a SIGTERM: exit status 0 and
+    # the run's own summary (it said "interrupted" with status 143).
+    move = cli._move_into_place
+
+    def move_then_signal(*args):
+        move(*args)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(cli, "_move_into_place", move_then_signal)
+    out = tmp_path / "o"
+    status = main(["render", "--scene", "flash", *SMALL, "--format", "pfm", "--out", str(out)])
+    said = capsys.readouterr()
+    assert status == 0, said.err
+    assert said.out.startswith("wrote") and "interrupted" not in said.err
+    assert (out / "diagnostics.csv").is_file()
 
 
 def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):

@@ -1,0 +1,69 @@
+"""The ``jaxadapt`` program (and ``python -m jaxadapt``), signals handled from
+its first instruction.
+
+Importing the command line takes a second or two (JAX, NumPy); a Ctrl-C in
+that time printed a 30-line traceback. :func:`run` takes the signals before
+it imports anything else, so that an interrupt at any point gives the one
+line and the shell's status, as :mod:`jaxadapt.cli` does while a command
+runs.
+"""
+
+import os
+import signal
+import sys
+
+#: The signals that interrupt a command: Ctrl-C, a scheduler's SIGTERM, a
+#: closed terminal's SIGHUP (where the platform has it).
+SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+#: What an interrupted command says on stderr, where it wrote nothing.
+INTERRUPTED = "jaxadapt: interrupted; nothing was written to --out"
+
+
+#: Signals received before the command line took them over.
+_SIGNALLED = []
+
+
+def _interrupt(signum, frame):
+    _SIGNALLED.append(signum)
+    raise KeyboardInterrupt(signum)
+
+
+def _unraisable(info):
+    """Python's hook for an error it cannot raise, as an interrupt that comes
+    while a garbage-collector callback runs (JAX has one): such an interrupt
+    is remembered where it came (:data:`_SIGNALLED`, and the command line's
+    own record) and acted on there, not printed as a traceback."""
+    if not isinstance(info.exc_value, KeyboardInterrupt):
+        sys.__unraisablehook__(info)
+
+
+def take_signals(handler):
+    """Handle the :data:`SIGNALS` with ``handler``, except those the process
+    was started ignoring (``nohup`` ignores SIGHUP), which stay ignored;
+    returns the handlers they had, by signal."""
+    return {
+        s: signal.signal(s, handler) for s in SIGNALS if signal.getsignal(s) is not signal.SIG_IGN
+    }
+
+
+def run():
+    """Take the signals, import the command line and run it
+    (:func:`jaxadapt.cli.run`, which exits with the command's status)."""
+    sys.unraisablehook = _unraisable
+    taken = take_signals(_interrupt)
+    try:
+        from jaxadapt import cli
+
+        if _SIGNALLED:  # an interrupt the import's garbage collection swallowed
+            raise KeyboardInterrupt(_SIGNALLED[0])
+        cli.run()
+    except KeyboardInterrupt as e:  # before the command line took the signals
+        for s in taken:
+            signal.signal(s, signal.SIG_IGN)
+        print(INTERRUPTED, file=sys.stderr, flush=True)
+        # Not through Python's finalisation: an import cut short (NumPy's,
+        # JAX's) leaves its C extension half made, and finalising it crashed
+        # (status -11 for a Ctrl-C 0.3 s in).
+        os._exit(128 + (e.args[0] if e.args else signal.SIGINT))
