@@ -1483,15 +1483,10 @@ def _interruptible():
 
 
 def _message(error):
-    """The one line that says what went wrong: the first line of the error,
-    or for an ``equinox`` check inside compiled code (whose text starts with
-    the stack) the message after its class name."""
-    lines = str(error).strip().splitlines()
-    for line in lines:
-        _, mark, message = line.partition("EquinoxRuntimeError: ")
-        if mark:
-            return message
-    return lines[0] if lines else type(error).__name__
+    """The one line that says what went wrong (:func:`jaxadapt.operators.checks.error_message`)."""
+    from jaxadapt.operators.checks import error_message
+
+    return error_message(error)
 
 
 if __name__ == "__main__":

@@ -155,6 +155,8 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
+from jaxadapt.operators.checks import plain_errors
+
 #: What a weight must be, said for bad ones on the host and under ``jit``.
 WEIGHTS_MESSAGE = (
     "weights: expected finite, non-negative weights (1/sd^2; 0 leaves a measurement out)"
@@ -1242,6 +1244,7 @@ def _queue(problem, data, weights, lanes):
     return jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a])[:n], *chunks)
 
 
+@plain_errors
 def fit(
     model: Callable,
     params,

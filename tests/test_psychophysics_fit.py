@@ -229,11 +229,17 @@ def test_bad_input_is_named():
             F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, n_resamples=bad)
     import equinox as eqx
 
+    # The message is the error's first line (an EquinoxRuntimeError began with
+    # the stack outside and inside jit); inside the caller's jit it stays one.
     for n_yes, n_total in ((np.array([1, 2, 31, 4, 5]), 30), (np.zeros(5), [30] * 4 + [np.inf])):
-        with pytest.raises(eqx.EquinoxRuntimeError, match="n_yes, n_total: expected finite 0 <="):
+        with pytest.raises(ValueError, match="^n_yes, n_total: expected finite 0 <="):
             F.fit(X, n_yes, np.asarray(n_total, float))
-    with pytest.raises(eqx.EquinoxRuntimeError, match="levels: expected finite"):
+    with pytest.raises(ValueError, match="^levels: expected finite"):
         F.fit(np.r_[X[:4], np.nan], np.zeros(5), 30)
+    with pytest.raises(ValueError, match="^levels: expected finite"):
+        F.bootstrap(jax.random.key(0), np.r_[X[:4], np.nan], np.zeros(5), 30, n_resamples=2)
+    with pytest.raises(eqx.EquinoxRuntimeError, match="levels: expected finite"):
+        eqx.filter_jit(lambda x: F.fit(x, np.zeros(5), 30).pse)(np.r_[X[:4], np.nan])
 
 
 def test_recovery_and_observed_information_errors():

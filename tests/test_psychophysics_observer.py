@@ -8,7 +8,6 @@ frequency, at four standard errors.
 
 import dataclasses
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -315,9 +314,9 @@ def test_bad_inputs_are_named():
     with pytest.raises(ValueError, match="observers"):
         O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), O.Observer())
     for bad in (O.Observer(noise=0.0), O.Observer(lapse=1.0), O.Observer(noise=jnp.nan)):
-        with pytest.raises(eqx.EquinoxRuntimeError, match="noise > 0"):
+        with pytest.raises(ValueError, match="^observers: expected noise > 0"):
             # 3 observers: the batch of the vmapped experiment above (one compilation)
             O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 3))
         # probability itself gave 0/0 = NaN (noise 0) or values beyond [0, 1].
-        with pytest.raises(eqx.EquinoxRuntimeError, match="observer: expected noise > 0"):
+        with pytest.raises(ValueError, match="^observer: expected noise > 0"):
             O.probability(O.plain_stimuli(A), bad)

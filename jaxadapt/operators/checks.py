@@ -10,6 +10,7 @@ caller's ``jit`` or ``vmap``, ``equinox.error_if`` raises
 """
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -71,6 +72,37 @@ def is_traced(*trees):
     """Whether a leaf of ``trees`` is a tracer: the caller is inside
     ``jit``, ``vmap`` or a derivative, where no value can reach Python."""
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
+
+
+def error_message(error):
+    """The message of an ``equinox`` value check's ``EquinoxRuntimeError``,
+    whose text starts with the stack outside and inside ``jit``: the text
+    after its class name (the first line of any other error)."""
+    lines = str(error).strip().splitlines()
+    for line in lines:
+        _, mark, message = line.partition("EquinoxRuntimeError: ")
+        if mark:
+            return message
+    return lines[0] if lines else type(error).__name__
+
+
+def plain_errors(fn):
+    """``fn``, raising its value checks' errors (``equinox.error_if``) as a
+    ``ValueError`` whose text is the message, where it is called outside
+    ``jit``; inside a ``jit``, ``vmap`` or a derivative (:func:`is_traced`)
+    ``fn`` is called as it is. The result is waited for: the check raises
+    when the computation reaches it."""
+
+    @functools.wraps(fn)
+    def checked(*args, **kwargs):
+        if is_traced(args, kwargs):
+            return fn(*args, **kwargs)
+        try:
+            return jax.block_until_ready(fn(*args, **kwargs))
+        except eqx.EquinoxRuntimeError as error:
+            raise ValueError(error_message(error)) from None
+
+    return checked
 
 
 def value_check(dtype, bad, messages, on_host):

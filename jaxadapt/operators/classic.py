@@ -35,6 +35,7 @@ from jaxadapt.operators.checks import (
     check_rgb,
     frames_and_dt_messages,
     is_traced,
+    plain_errors,
     raise_verdict,
 )
 from jaxadapt.operators.goal import (
@@ -394,6 +395,7 @@ def _background(L, background):
     return I_b
 
 
+@plain_errors
 @eqx.filter_jit
 def tone_map(params, frame, background=None):
     """Tone-map linear RGB frames with one of the curves.

@@ -110,6 +110,7 @@ from jax.sharding import AxisType, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaxadapt.fitting import NEWTON_STEP
+from jaxadapt.operators.checks import plain_errors
 from jaxadapt.spatial import check_whole
 
 ALL_SAME = 1
@@ -683,6 +684,7 @@ def _fit(levels, n_yes, n_total, guess, lapse, max_steps):
     return _fit_batch(levels, n_yes, n_total, guess, lapse, max_steps)
 
 
+@plain_errors
 def fit(levels, n_yes, n_total, *, guess=0.0, lapse=0.0, max_steps=MAX_STEPS):
     """Fit cumulative Gaussians to binomial counts, all datasets at once.
 
@@ -817,6 +819,7 @@ def _rows(tree, rows):
     return jax.tree.map(lambda a: a[rows], tree)
 
 
+@plain_errors
 def bootstrap(
     key,
     levels,

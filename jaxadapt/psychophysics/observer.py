@@ -86,6 +86,7 @@ from jax.scipy.special import ndtr
 from jaxadapt import io, scenes
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators import jacobs2015
+from jaxadapt.operators.checks import plain_errors
 from jaxadapt.operators.goal import LUMINANCE_FLOOR
 from jaxadapt.psychophysics import design
 from jaxadapt.psychophysics import trials as trial_tables
@@ -705,6 +706,7 @@ def _checked(observer, name="observer"):
     return eqx.error_if(observer, bad, f"{name}: expected noise > 0 and 0 <= lapse < 1")
 
 
+@plain_errors
 def probability(stimuli, observer, test_first=None):
     """Probability of "test brighter" per condition and level.
 
@@ -738,6 +740,7 @@ def probability(stimuli, observer, test_first=None):
     return _p_yes(mean, observer, jnp.where(test_first, 1.0, -1.0))
 
 
+@plain_errors
 def trial_probability(stimuli, observer, trials):
     """Probability of "test brighter" on each trial of a
     :class:`jaxadapt.psychophysics.design.Trials` (its condition, level and
@@ -802,6 +805,7 @@ def _simulate_observers(key, protocol, stimuli, observers):
     return Experiment(observers, trials, responses, excluded)
 
 
+@plain_errors
 def simulate_observers(key, protocol, stimuli, observers):
     """Given observers through a protocol, all in one ``vmap``-ped call.
 

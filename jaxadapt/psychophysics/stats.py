@@ -44,6 +44,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtr
 
+from jaxadapt.operators.checks import plain_errors
+
 #: ``method="auto"`` uses the exact null distribution when the smaller group
 #: has at most this many values and there are no ties (SciPy's rule).
 AUTO_EXACT_MAX = 8
@@ -266,6 +268,7 @@ def _exact_p(u, n_x, n_y, s_lo, s_hi, l_lo, l_hi, dtype):
     return jnp.minimum(2 * tail, 1.0)
 
 
+@plain_errors
 def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     """Two-sided Wilcoxon rank-sum (Mann-Whitney) test.
 
