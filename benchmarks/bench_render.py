@@ -71,14 +71,15 @@ def run_processes(commands):
     forked from, up to its ``exec``: this one must stay small until the
     timings are done (no JAX imported; the frames are made in a process of
     their own, the stages measured last)."""
-    start, processes, previous = time.perf_counter(), [], None
+    start, processes, previous, logs = time.perf_counter(), [], None, []
     for i, command in enumerate(commands):
         last = i == len(commands) - 1
+        logs.append(tempfile.TemporaryFile())  # a pipe read only at the end could fill
         process = subprocess.Popen(
             command,
             stdin=previous,
             stdout=subprocess.DEVNULL if last else subprocess.PIPE,
-            stderr=subprocess.PIPE,
+            stderr=logs[-1],
         )
         if previous is not None:
             previous.close()  # the next process holds it
@@ -90,9 +91,12 @@ def run_processes(commands):
         process.returncode = os.waitstatus_to_exitcode(status)
         peak += usage.ru_maxrss * 1024  # kB on Linux
     wall = time.perf_counter() - start
-    for command, process in zip(commands, processes, strict=True):
+    for command, process, log in zip(commands, processes, logs, strict=True):
+        log.seek(0)
+        said = log.read().decode(errors="replace")
+        log.close()
         if process.returncode != 0:
-            raise RuntimeError(f"{command[0]} failed: {process.stderr.read().decode()[-500:]}")
+            raise RuntimeError(f"{command[0]} failed: {said[-500:]}")
     return wall, peak
 
 
