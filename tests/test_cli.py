@@ -34,6 +34,18 @@ def _run(capsys, *argv):
     return status, capsys.readouterr().err
 
 
+def _start(*argv, **options):
+    """``python -m jaxadapt ARGV`` started in a process of its own, its
+    stderr piped (text), its stdout discarded."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "jaxadapt", *argv],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        **options,
+    )
+
+
 def _fit_rows(capsys, rows, folder, *options):
     """``psychometric fit`` of a table of ``rows`` (lines), written to
     ``folder/trials.csv``, into ``folder``: ``(status, stderr)``."""
@@ -1271,12 +1283,7 @@ def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command
     trials.write_text("participant,condition,level,n_yes,n_total\n" + "\n".join(rows) + "\n")
     out = tmp_path / "new" / "out"
     command = [str(trials) if c == "TRIALS" else c for c in command]
-    process = subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", *command, "--out", str(out)],
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-    )
+    process = _start(*command, "--out", str(out))
     deadline = time.monotonic() + 120
     while not (out.exists() and any(out.iterdir())) and process.poll() is None:
         assert time.monotonic() < deadline, "the run made no staging folder in 120 s"
@@ -1295,13 +1302,8 @@ def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
     # reader and writer threads stop and are joined, the staging folder
     # with its frames goes, and the process ends with the shell's status.
     out = tmp_path / "new" / "out"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", "render", "--scene", "tunnel", "--size", "320x180"]
-        + ["--format", "pfm", "--chunk", "4", "--out", str(out)],
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-    )
+    args = ["render", "--scene", "tunnel", "--size", "320x180", "--format", "pfm", "--chunk", "4"]
+    process = _start(*args, "--out", str(out))
     deadline = time.monotonic() + 120
     while len(list(out.glob("*/frame_*.pfm"))) < 8 and process.poll() is None:
         assert time.monotonic() < deadline, "the run wrote no 8 frames in 120 s"
@@ -1320,12 +1322,7 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
     # any command runs: a 30-line traceback, where the line and the status
     # of an interrupted run are due.
     out = tmp_path / "o"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", "render", "--scene", "flash", *SMALL, "--out", str(out)],
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-    )
+    process = _start("render", "--scene", "flash", *SMALL, "--out", str(out))
     time.sleep(delay)
     process.send_signal(signal.SIGINT)
     err = process.communicate(timeout=120)[1]
@@ -1373,13 +1370,8 @@ def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
     # Handled as an interrupt, SIGHUP ended a `nohup jaxadapt render` when
     # its terminal closed.
     out = tmp_path / "o"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", "render", "--scene", "flash", *SMALL, "--out", str(out)],
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN),
-    )
+    ignore_hup = lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)  # noqa: E731
+    process = _start("render", "--scene", "flash", *SMALL, "--out", str(out), preexec_fn=ignore_hup)
     deadline = time.monotonic() + 120
     while not (out.exists() and any(out.iterdir())) and process.poll() is None:
         assert time.monotonic() < deadline, "the run made no staging folder in 120 s"
