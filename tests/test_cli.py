@@ -1316,7 +1316,7 @@ def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
-@pytest.mark.parametrize("delay", [0.3, 1.0])
+@pytest.mark.parametrize("delay", [0.5, 1.2])
 def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
     # Sent while the program imports JAX and parses its arguments, before
     # any command runs: a 30-line traceback, where the line and the status
