@@ -461,6 +461,21 @@ def atomic_path(path):
 #: OpenImageIO's names of the display encodings of :mod:`jaxadapt.display`,
 #: with which 8-bit files are tagged (PNG: an sRGB chunk, or a gAMA of 1/2.2).
 COLOUR_SPACES = {"srgb": "sRGB", "gamma": "Gamma2.2"}
+
+#: Deflate level of PNG frames and of EXR's lossless ``zip``: the fastest, 1.
+#: The frames of a render are the work its writer thread must keep up with,
+#: and natural frames barely compress further at higher levels (EXR's
+#: full-precision floats not at all); ``benchmarks/bench_writers.py``.
+DEFLATE_LEVEL = 1
+#: PNG's Paeth filter on every row (ISO/IEC 15948, filter type 4), where
+#: libpng by default tries all five filters on each row and keeps the best.
+PNG_PAETH = 0x80
+#: Header attributes that set the compression of a written file, by suffix.
+COMPRESSION = {
+    ".png": {"png:compressionLevel": DEFLATE_LEVEL, "png:filter": PNG_PAETH},
+    ".exr": {"compression": f"zip:{DEFLATE_LEVEL}"},
+}
+
 #: ffmpeg's name of each encoding's transfer function, for a video's tag
 #: (BT.470 M is a pure gamma of 2.2).
 VIDEO_TRANSFERS = {"srgb": "iec61966-2-1", "gamma": "bt470m"}
@@ -477,12 +492,14 @@ def write_image(path, pixels, encoding="srgb", fps=None):
     sequence at that rate (frames/s), goes into the header where the format
     has a place for it (an EXR's ``framesPerSecond``, which
     :func:`frame_rate` reads back), as the nearest fraction of 32-bit terms
-    with a denominator of at most 1e6 (24000/1001 for 23.976...).
+    with a denominator of at most 1e6 (24000/1001 for 23.976...). PNG and
+    EXR are compressed losslessly, for speed (:data:`COMPRESSION`).
     """
     pixels = np.ascontiguousarray(pixels)
     _check_pixels(path, pixels)
     kind = "uint8" if pixels.dtype == np.uint8 else "float"
-    if Path(path).suffix.lower() == ".pfm":
+    suffix = Path(path).suffix.lower()
+    if suffix == ".pfm":
         _write_pfm(path, pixels)
         return
     with atomic_path(path) as tmp:
@@ -492,6 +509,8 @@ def write_image(path, pixels, encoding="srgb", fps=None):
         spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], kind)
         if kind == "uint8":
             spec.attribute("oiio:ColorSpace", COLOUR_SPACES[encoding])
+        for name, value in COMPRESSION.get(suffix, {}).items():
+            spec.attribute(name, value)
         if fps is not None:
             most = min(10**6, int(_INT32_MAX // max(fps, 1.0)))  # the numerator fits too
             rate = Fraction(fps).limit_denominator(most)

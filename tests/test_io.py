@@ -1,6 +1,7 @@
 """HDR file input and output (OpenImageIO) against the formats' own layout."""
 
 import re
+import zlib
 
 import colour
 import numpy as np
@@ -89,6 +90,43 @@ def test_png_is_tagged_with_its_encoding(tmp_path, encoding, chunk):
         assert b"sRGB" not in data
         at = data.index(b"gAMA") + 4
         assert int.from_bytes(data[at : at + 4], "big") == round(1e5 / 2.2)
+
+
+def test_png_frames_are_deflated_fast_with_one_filter_losslessly(tmp_path):
+    # A zlib stream (RFC 1950) begins with CMF and FLG; FLG's two top bits,
+    # FLEVEL, say how hard the compressor worked: 0 is its fastest
+    # algorithm (zlib writes 0 for levels 0 and 1, 2 for its default 6).
+    # Inflated, each row begins with its filter type (ISO/IEC 15948): 4 for
+    # Paeth, on every row.
+    pixels = np.random.default_rng(0).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    path = tmp_path / "frame.png"
+    io.write_image(path, pixels)
+    data, stream, at = path.read_bytes(), b"", 8
+    while at < len(data):
+        length, kind = int.from_bytes(data[at : at + 4], "big"), data[at + 4 : at + 8]
+        if kind == b"IDAT":
+            stream += data[at + 8 : at + 8 + length]
+        at += 12 + length
+    cmf, flg = stream[0], stream[1]
+    assert cmf & 0x0F == 8 and (cmf * 256 + flg) % 31 == 0  # deflate, a valid header
+    assert flg >> 6 == 0
+    rows = np.frombuffer(zlib.decompress(stream), np.uint8).reshape(48, 1 + 64 * 3)
+    assert set(rows[:, 0]) == {4}
+    np.testing.assert_array_equal(oiio.ImageBuf(str(path)).get_pixels(oiio.UINT8), pixels)
+
+
+def test_exr_frames_are_compressed_losslessly(tmp_path):
+    # Display values with every bit of a float32 set by noise come back bit
+    # for bit; a flat frame shrinks to a small fraction of its 4 bytes a value.
+    noisy = np.random.default_rng(0).random((32, 40, 3), dtype=np.float32)
+    flat = np.full((256, 256, 3), 0.25, np.float32)
+    for name, pixels in (("noisy.exr", noisy), ("flat.exr", flat)):
+        io.write_image(tmp_path / name, pixels)
+        source = oiio.ImageInput.open(str(tmp_path / name))
+        assert source.spec().get_string_attribute("compression") == "zip"
+        np.testing.assert_array_equal(source.read_image("float"), pixels)
+        source.close()
+    assert (tmp_path / "flat.exr").stat().st_size < flat.nbytes / 50
 
 
 @pytest.mark.parametrize(
