@@ -12,12 +12,15 @@ runs of each (the first jaxadapt run, which fills the compilation cache,
 is recorded apart), the peak resident memory of each process (``wait4``;
 for the pipe, the sum of its three processes' peaks) and the stages of a
 render measured alone in this process (seconds a frame to read, compute
-and write). ``--long`` also renders 60 and 600 frames of the built-in
-tunnel at 1920x1080 with the default outputs (PNG and MP4), whose peak
+and write). ``--formats png exr`` also times renders that write those
+formats from the same files (the peer writes PFM). ``--long`` also renders
+60 and 600 frames of the built-in tunnel at 1920x1080 with the default
+outputs (PNG and MP4), whose peak
 memory must not grow with the length.
 
     python benchmarks/bench_render.py [--sizes 1920x1080:60 3840x2160:40]
                                       [--repeats 3] [--data DIR] [--long]
+                                      [--formats png exr]
 """
 
 import argparse
@@ -184,6 +187,7 @@ def main():
     parser.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "jaxadapt-bench")
     parser.add_argument("--long", action="store_true", help="also 60 and 600 tunnel frames")
     parser.add_argument("--label", default="cpu-2core")
+    parser.add_argument("--formats", nargs="*", default=[], choices=["png", "exr", "mp4"])
     args = parser.parse_args()
 
     record = {"repeats": args.repeats, "sizes": {}}
@@ -204,6 +208,9 @@ def main():
             "speedup": pf_wall / wall if pf_wall else None,
             "paths": paths,
         }
+        for fmt in args.formats:
+            _, fmt_wall, fmt_peak = time_jaxadapt([*paths, "--format", fmt], scratch, args.repeats)
+            row[f"jaxadapt_{fmt}_out"] = {"s": fmt_wall, "peak_rss_bytes": fmt_peak}
         record["sizes"][size] = row
         print(size, {k: v for k, v in row.items() if k != "paths"}, flush=True)
     if args.long:
