@@ -15,8 +15,7 @@ render measured alone in this process (seconds a frame to read, compute
 and write). ``--formats png exr`` also times renders that write those
 formats from the same files (the peer writes PFM). ``--long`` also renders
 60 and 600 frames of the built-in tunnel at 1920x1080 with the default
-outputs (PNG and MP4), whose peak
-memory must not grow with the length.
+outputs (PNG and MP4), whose peak memory must not grow with the length.
 
     python benchmarks/bench_render.py [--sizes 1920x1080:60 3840x2160:40]
                                       [--repeats 3] [--data DIR] [--long]
