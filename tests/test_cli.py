@@ -23,6 +23,7 @@ import statsmodels.api as sm
 from scipy.stats import mannwhitneyu
 
 from jaxadapt import cli, io, pipeline, runtime
+from jaxadapt._program import SIGNALS
 from jaxadapt.cli import _message, main
 from jaxadapt.operators import pattanaik2000 as op
 
@@ -34,16 +35,43 @@ def _run(capsys, *argv):
     return status, capsys.readouterr().err
 
 
-def _start(*argv, **options):
-    """``python -m jaxadapt ARGV`` started in a process of its own, its
-    stderr piped (text), its stdout discarded."""
+def _default_signals(*ignored):
+    """A ``preexec_fn`` that gives a child process the default disposition
+    of each signal the command line handles, then ignores ``ignored``: a
+    suite started in the background or under nohup ignores SIGINT or
+    SIGHUP, passes that on to its children, and the command line rightly
+    keeps such signals ignored."""
+
+    def reset():
+        for s in SIGNALS:
+            signal.signal(s, signal.SIG_DFL)
+        for s in ignored:
+            signal.signal(s, signal.SIG_IGN)
+
+    return reset
+
+
+def _start(*argv, ignored=()):
+    """``python -m jaxadapt ARGV`` started in a process of its own with the
+    default signal dispositions but ``ignored``, its stderr piped (text),
+    its stdout discarded."""
     return subprocess.Popen(
         [sys.executable, "-m", "jaxadapt", *argv],
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         text=True,
-        **options,
+        preexec_fn=_default_signals(*ignored),
     )
+
+
+@pytest.fixture
+def interruptible():
+    """Ctrl-C handled in this process for one test, as in a shell's
+    foreground (a suite started in the background ignores it), then as
+    before."""
+    saved = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, saved)
 
 
 def _fit_rows(capsys, rows, folder, *options):
@@ -371,7 +399,9 @@ def test_a_folder_named_as_an_output_is_refused_before_the_render(tmp_path, caps
     assert [p.name for p in out.iterdir()] == ["video.mp4"]
 
 
-def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(tmp_path, capsys, monkeypatch):
+def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(
+    tmp_path, monkeypatch, interruptible
+):
     # A SIGINT after the first of the moves into --out left the new run's
     # first files beside the rest of the earlier run's, and the message said
     # that nothing was written.
@@ -1344,7 +1374,12 @@ def test_a_signal_after_the_command_leaves_its_status(tmp_path):
         "cli.main = main\n"
         "cli.run()\n"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        preexec_fn=_default_signals(),
+    )
     assert (done.returncode, done.stderr) == (0, "")
 
 
@@ -1370,8 +1405,9 @@ def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
     # Handled as an interrupt, SIGHUP ended a `nohup jaxadapt render` when
     # its terminal closed.
     out = tmp_path / "o"
-    ignore_hup = lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)  # noqa: E731
-    process = _start("render", "--scene", "flash", *SMALL, "--out", str(out), preexec_fn=ignore_hup)
+    process = _start(
+        "render", "--scene", "flash", *SMALL, "--out", str(out), ignored=[signal.SIGHUP]
+    )
     deadline = time.monotonic() + 120
     while not (out.exists() and any(out.iterdir())) and process.poll() is None:
         assert time.monotonic() < deadline, "the run made no staging folder in 120 s"
