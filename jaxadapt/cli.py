@@ -33,15 +33,6 @@ from jaxadapt import runtime
 from jaxadapt._program import INTERRUPTED, take_signals
 
 FORMATS = ("png", "mp4", "exr", "pfm")
-OPERATORS = (
-    "pattanaik2000",
-    "jacobs2015",
-    "schlick1994",
-    "tumblin1999",
-    "reinhard-devlin",
-    "photographic",
-    "ward-jnd",
-)
 CONTACT_FRAMES = 12
 #: Size of a local background estimator unless --background-scale says otherwise, pixels.
 BACKGROUND_SCALE = 8.0
@@ -225,6 +216,7 @@ def _version():
 
 
 def build_parser():
+    from jaxadapt.operators import OPERATORS, TONE_CURVE_NAMES
     from jaxadapt.operators.goal import BACKGROUNDS, GOALS
     from jaxadapt.scenes import SCENES
 
@@ -290,13 +282,13 @@ def build_parser():
     )
     render.add_argument(
         "--operator",
-        choices=OPERATORS,
+        choices=list(OPERATORS),
         default="pattanaik2000",
         help="the operator: pattanaik2000 (time-dependent adaptation, the default), "
         "jacobs2015 (gaze-driven adaptation with afterimages, Purkinje shift, mesopic colour "
         "and acuity loss; its frames are display-encoded and dithered, so --encoding does "
-        "not apply), or a static tone curve of the HDR-imaging chapter (schlick1994, "
-        "tumblin1999, reinhard-devlin, photographic, ward-jnd)",
+        "not apply), or a static tone curve of the HDR-imaging chapter "
+        f"({', '.join(TONE_CURVE_NAMES)})",
     )
     render.add_argument(
         "--gaze",
@@ -874,11 +866,11 @@ def _operator(args, source, fps):
     from functools import partial
 
     from jaxadapt import figures
+    from jaxadapt.operators import OPERATORS, classic, jacobs2015, pattanaik2000
 
     ppd = args.pixels_per_degree or source.pixels_per_degree
-    if args.operator == "pattanaik2000":
-        from jaxadapt.operators import pattanaik2000 as op
-
+    op = OPERATORS[args.operator]
+    if op is pattanaik2000:
         goal = args.adaptation_goal or source.goal
         if args.adaptation_goal is not None and args.background != "global":
             raise UsageError(
@@ -905,16 +897,12 @@ def _operator(args, source, fps):
         where = "goal " + goal if args.background == "global" else args.background + " background"
         title = f"{source.name}: Pattanaik et al. 2000, {where}"
         return op, params, partial(figures.plot_adaptation, title=title), False
-    if args.operator == "jacobs2015":
-        from jaxadapt.operators import jacobs2015 as op
-
+    if op is jacobs2015:
         title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
         params = op.Params(pixels_per_degree=ppd, afterimage_blur=op.blur_for_display(ppd, fps))
         notes = op.diagnostics_notes(params)
         plot = partial(figures.plot_columns, title=title, units=op.DIAGNOSTIC_UNITS, notes=notes)
         return op, params, plot, True
-    from jaxadapt.operators import classic
-
     params = classic.Params(
         classic.TONE_CURVES[args.operator](),
         args.background,

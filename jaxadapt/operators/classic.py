@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.color import photopic_luminance
+from jaxadapt.operators import TONE_CURVE_NAMES
 from jaxadapt.operators.checks import (
     as_dtype,
     check_frames_and_dt,
@@ -354,14 +355,15 @@ class WardJND(eqx.Module):
         return ward_display_luminance(jnd_count(I, I_b, tvi), self.L_da, tvi) / self.L_dmax
 
 
-#: The tone curves by name: their parameter classes.
-TONE_CURVES = {
-    "schlick1994": Schlick1994,
-    "tumblin1999": Tumblin1999,
-    "reinhard-devlin": ReinhardDevlin,
-    "photographic": Photographic,
-    "ward-jnd": WardJND,
-}
+#: The tone curves by name (:data:`jaxadapt.operators.TONE_CURVE_NAMES`, in
+#: that order): their parameter classes.
+TONE_CURVES = dict(
+    zip(
+        TONE_CURVE_NAMES,
+        (Schlick1994, Tumblin1999, ReinhardDevlin, Photographic, WardJND),
+        strict=True,
+    )
+)
 
 
 # -- applying a curve to frames --------------------------------------------------
