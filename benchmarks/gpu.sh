@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The benchmarks and GPU checks run on a lent GPU machine (no network there).
 # The packages its image lacks (colour-science, OpenImageIO) travel as wheels
-# in .whl/ (the README's Performance section says how). The records land in
+# in .whl/ (benchmarks/README.md, "On a GPU", says how). The records land in
 # $OUT after each step, so a later step that fails or runs out of time keeps
 # them; the exit status is that of the first step that failed.
 set -euo pipefail

@@ -11,7 +11,7 @@ def setup(name, description):
 
     ``--smoke`` asks for a small, fast run (small frames, few samples) that
     exercises the same code, and says so first: its numbers are not the
-    full run's that the script's docstring and the README quote. Results
+    full run's that the script's docstring and the docs quote. Results
     go to ``results/<name>/`` unless ``--out`` says otherwise.
     """
     parser = argparse.ArgumentParser(description=description)
@@ -22,6 +22,6 @@ def setup(name, description):
     if args.smoke:
         print(
             f"{name}: smoke run (small frames, few samples): its numbers are not the full "
-            "run's quoted in the docstring and the README"
+            "run's quoted in the docstring and the docs"
         )
     return args, args.out

@@ -15,15 +15,13 @@ Reparameterisation
 The optimiser works on unconstrained values ``u``, one per element of each
 fitted field, mapped to the parameter by its bounds ``(low, high)``:
 
-=====================  ==============================  =====================
-bounds                 parameter                       start ``u``
-=====================  ==============================  =====================
-``(0, inf)`` (default)  ``exp(u)``                      ``log(p)``
-``(low, inf)``          ``low + exp(u)``                ``log(p - low)``
-``(-inf, high)``        ``high - exp(u)``               ``log(high - p)``
-``(low, high)``         ``low + (high - low) s(u)``     ``logit((p - low) / (high - low))``
-``None``                ``u``                           ``p``
-=====================  ==============================  =====================
+| bounds | parameter | start ``u`` |
+| --- | --- | --- |
+| ``(0, inf)`` (default) | ``exp(u)`` | ``log(p)`` |
+| ``(low, inf)`` | ``low + exp(u)`` | ``log(p - low)`` |
+| ``(-inf, high)`` | ``high - exp(u)`` | ``log(high - p)`` |
+| ``(low, high)`` | ``low + (high - low) s(u)`` | ``logit((p - low) / (high - low))`` |
+| ``None`` | ``u`` | ``p`` |
 
 with ``s`` the logistic sigmoid. Every field is positive unless ``bounds``
 says otherwise (time constants, bleaching constants and semi-saturations
@@ -519,7 +517,7 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
     Whether the fit stopped at a minimum is :func:`fit`'s test
     (``Fit.newton_step``), not the solver's.
 
-    Parameters
+    Attributes
     ----------
     rtol, atol : float
         Tolerances of optimistix's test.
@@ -527,7 +525,7 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
         Relative reduction of the sum of squares (``0`` disables the test).
     search, descent : optimistix search and descent
         Default :class:`NielsenDamping` and :class:`ScaledDampedNewtonDescent`.
-    norm, verbose
+    norm, verbose : callable
         As in ``optimistix.LevenbergMarquardt`` (max norm, silent).
     """
 

@@ -9,8 +9,8 @@ much as the computation: one call of ``pattanaik2000.run`` on 60 frames of
 1920x1080 took 6.8 s of system time in 972,000 page faults on the 2-core
 machine of ``benchmarks/`` (``getrusage`` around the call, recorded by
 ``benchmarks/bench_pattanaik2000.py`` in
-``results/pattanaik2000_cpu-2core_1920x1080.json``; see the README's
-performance section).
+``results/pattanaik2000_cpu-2core_1920x1080.json``; see
+``benchmarks/README.md``).
 
 :func:`retain_freed_memory` asks glibc to serve every block from its heap and
 to keep what is freed there for the next call: the same call then takes no

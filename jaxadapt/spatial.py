@@ -573,7 +573,8 @@ def disc_window(s):
 
     Returns
     -------
-    numpy array, shape (2 R + 1, 2 R + 1), ``R = ceil(s) - 1``
+    numpy array, shape (2 R + 1, 2 R + 1)
+        With ``R = ceil(s) - 1``.
     """
     if not (np.isfinite(s) and s > 0):
         raise ValueError(f"scale: expected a positive radius in pixels, got {s!r}")

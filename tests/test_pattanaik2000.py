@@ -41,7 +41,7 @@ def test_rule_1_is_an_identity_for_luminance():
 def test_rule_1_colour_follows_the_papers_exponent():
     # Colour ratios are raised to S_color(L) / S_d (Eq 3 per log10 unit over
     # the display's forward-difference slope): unchanged where the local slope
-    # equals S_d, desaturated below and saturated above (see README, choices).
+    # equals S_d, desaturated below and saturated above (docs/choices.md).
     obs = op.observer(P, display_state(P))
     S_d = float(op.display_slope(P))
     L = jnp.geomspace(1.0, 500.0, 200)

@@ -17,7 +17,7 @@ e.g. a :data:`jaxadapt.operators.goal.BACKGROUNDS` estimator.
 References
 ----------
 Reinhard, Ward, Pattanaik, Debevec (2005), *High Dynamic Range Imaging*,
-chapter 6, §6.3.1-6.3.2 and Eq 6.2-6.3 (``shared/seeds/001_*.txt``).
+chapter 6, §6.3.1-6.3.2 and Eq 6.2-6.3.
 """
 
 from functools import partial

@@ -7,7 +7,7 @@ per image, shape ``(...)``, in cd/m2 (Pattanaik et al. 2000, §4.1.2, the
 The background estimators map a luminance image ``(..., H, W)`` to a
 background (adapting) luminance per pixel, shape ``(..., H, W)``, in cd/m2:
 the ``I_b`` of the tone curves, estimated globally or locally in the ways
-§6.4 of the HDR-imaging chapter compares (``shared/seeds/001_*.txt``);
+§6.4 of the HDR-imaging chapter compares;
 :data:`BACKGROUNDS` names them. Each is jitted (``equinox.filter_jit``): its
 Python-number options, the sizes in pixels among them, are static.
 """

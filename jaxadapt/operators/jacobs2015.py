@@ -86,7 +86,7 @@ References
 ----------
 Jacobs, Gallo, Cooper, Pulli, Levoy (2015), *Simulating the Visual
 Experience of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §2, §2.4 and
-Appendix A (``shared/seeds/004_*.txt``).
+Appendix A.
 """
 
 import math

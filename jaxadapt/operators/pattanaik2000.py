@@ -26,8 +26,7 @@ not"), and is almost entirely white.
 References
 ----------
 Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation
-for Fast Realistic Image Display*, SIGGRAPH 2000, §4-§5
-(``shared/seeds/000_*.txt``).
+for Fast Realistic Image Display*, SIGGRAPH 2000, §4-§5.
 """
 
 from typing import NamedTuple
@@ -459,8 +458,9 @@ def tone_map(params, obs, rgb):
 
     The clip is per channel, as in the paper: a saturated colour whose
     dominant channel is at 1 can come out darker as it brightens, its
-    exponent (up to 3.04) pushing the other channels down (README,
-    "Saturated colours at display white"). Neutral pixels map monotonically.
+    exponent (up to 3.04) pushing the other channels down (the
+    documentation's choices, "Saturated colours at display white").
+    Neutral pixels map monotonically.
     """
     rgb = check_rgb(rgb, "rgb")
     e, s, black = pixel_terms(params, obs, scotopic_luminance(rgb), photopic_luminance(rgb))

@@ -8,7 +8,7 @@ Luminance in cd/m2, diameter in mm, area in mm2.
 References
 ----------
 Reinhard, Ward, Pattanaik, Debevec (2005), *High Dynamic Range Imaging*,
-chapter 6, §6.2.1-6.2.2 (``shared/seeds/001_*.txt``), after Moon and Spencer
+chapter 6, §6.2.1-6.2.2, after Moon and Spencer
 (1944) and de Groot and Gebhard (1952), as given by Wyszecki and Stiles
 (1982), *Color Science*, 2nd ed., p. 106.
 """

@@ -8,7 +8,7 @@ responses dimensionless.
 References
 ----------
 Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation
-for Fast Realistic Image Display*, Eqs 1-6 (``shared/seeds/000_*.txt``).
+for Fast Realistic Image Display*, Eqs 1-6.
 """
 
 import jax.numpy as jnp

@@ -8,7 +8,7 @@ Retinal illuminance in trolands (td), luminance in cd/m2.
 References
 ----------
 Reinhard, Ward, Pattanaik, Debevec (2005), *High Dynamic Range Imaging*,
-chapter 6 (``shared/seeds/001_*.txt``): §6.2 (Weber's law), §6.2.2 (the rod
+chapter 6: §6.2 (Weber's law), §6.2.2 (the rod
 and cone TVI curves of Rushton and MacLeod, trolands), §6.2.4 (the
 response-threshold relation), §6.3.2 (Ward's use of a TVI model).
 """
@@ -237,8 +237,8 @@ def _criterion_response(I_b, sigma_b, delta, R_max, n):
 def increment_sensitivity(I_b, sigma_b, delta, R_max=1.0, n=N_HUNT):
     """``1 / dI`` of :func:`increment_threshold`, in 1/(unit of ``I_b``).
 
-    Written as the reciprocal so that a saturated receptor (``R_b + delta
-    >= R_max``: no increment raises the response by ``delta``) has
+    Written as the reciprocal so that a saturated receptor
+    (``R_b + delta >= R_max``: no increment raises the response by ``delta``) has
     sensitivity 0 with a finite gradient instead of an infinite threshold,
     which is what a fit through saturation needs.
     """

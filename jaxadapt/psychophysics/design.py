@@ -17,8 +17,7 @@ and a response is 1 when the test was judged brighter.
 References
 ----------
 Jacobs, Gallo, Cooper, Pulli, Levoy (2015), *Simulating the Visual Experience
-of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1.1 and §4.2.1
-(``shared/seeds/004_*.txt``).
+of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1.1 and §4.2.1.
 """
 
 from typing import NamedTuple

@@ -62,14 +62,13 @@ Degenerate data
 ---------------
 No output is ever NaN. The data flags (bits of :attr:`Fit.flags`) are
 
-========================  ===  ==============================================
-``ALL_SAME``                1  every response is "yes", or every one "no"
-``SEPARATION``              2  the levels separate the yes from the no
-                               responses (completely or quasi-completely)
-``SINGLE_LEVEL``            4  fewer than two distinct levels have trials
-``EXTRAPOLATED``            8  the PSE lies outside the tested levels
-``FLAT``                   16  the slope is (numerically) zero
-========================  ===  ==============================================
+| flag | bit | meaning |
+| --- | --- | --- |
+| ``ALL_SAME`` | 1 | every response is "yes", or every one "no" |
+| ``SEPARATION`` | 2 | the levels separate yes from no responses, completely or quasi-completely |
+| ``SINGLE_LEVEL`` | 4 | fewer than two distinct levels have trials |
+| ``EXTRAPOLATED`` | 8 | the PSE lies outside the tested levels |
+| ``FLAT`` | 16 | the slope is (numerically) zero |
 
 With ``ALL_SAME``, ``SEPARATION`` or ``SINGLE_LEVEL`` the maximum-likelihood
 estimate does not exist (or is not unique); those datasets are fitted with a
@@ -90,8 +89,8 @@ does for its participant 11, and flagged.
 References
 ----------
 Jacobs, Gallo, Cooper, Pulli, Levoy (2015), *Simulating the Visual Experience
-of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1.2
-(``shared/seeds/004_*.txt``). Wichmann, Hill (2001), *The psychometric
+of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1.2.
+Wichmann, Hill (2001), *The psychometric
 function I and II*, Perception & Psychophysics 63 (lapse rates, bootstrap).
 """
 

@@ -63,8 +63,8 @@ Choices where the paper is silent
 References
 ----------
 Jacobs, Gallo, Cooper, Pulli, Levoy (2015), *Simulating the Visual Experience
-of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1-4.2
-(``shared/seeds/004_*.txt``). Thurstone (1927), *A law of comparative
+of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1-4.2.
+Thurstone (1927), *A law of comparative
 judgment*, Psychological Review 34. Wichmann, Hill (2001), *The
 psychometric function I*, Perception & Psychophysics 63 (lapses).
 """

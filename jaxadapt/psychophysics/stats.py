@@ -27,8 +27,7 @@ exact test asked for.
 
 References
 ----------
-Jacobs et al. (2015), ACM TOG 34(3), §4.1.2, §4.2.2
-(``shared/seeds/004_*.txt``). Hollander, Wolfe, Chicken (2014),
+Jacobs et al. (2015), ACM TOG 34(3), §4.1.2, §4.2.2. Hollander, Wolfe, Chicken (2014),
 *Nonparametric Statistical Methods*, 3rd ed., §4.1 (rank-sum test, ties) and
 §4.2 (Hodges-Lehmann shift). Mann and Whitney (1947), *Ann. Math. Statist.*
 18, 50-60 (the recursion of the exact null distribution).
