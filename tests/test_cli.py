@@ -8,6 +8,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -22,9 +23,10 @@ import pytest
 import statsmodels.api as sm
 from scipy.stats import mannwhitneyu
 
-from jaxadapt import cli, io, pipeline, runtime
+from jaxadapt import io, pipeline, runtime
 from jaxadapt._program import SIGNALS
-from jaxadapt.cli import _message, main
+from jaxadapt.cli import _signals, _staging, main
+from jaxadapt.cli._output import _message
 from jaxadapt.operators import pattanaik2000 as op
 
 SMALL = ["--size", "48x32", "--duration", "0.3"]
@@ -226,7 +228,7 @@ def test_a_render_larger_than_the_limit_or_the_disk_is_refused(tmp_path, capsys,
     assert not out.exists()
     # Frames that fit the limit but not the disk: the estimate and the free space.
     usage = shutil.disk_usage(tmp_path)
-    monkeypatch.setattr(cli.shutil, "disk_usage", lambda path: usage._replace(free=10**4))
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=10**4))
     args = ["render", "--scene", "flash", *SMALL, "--format", "pfm", "--out", str(out)]
     status, err = _run(capsys, *args)
     _assert_one_line_error(status, err, "--out", "more than the 10 kB free", "--allow-large")
@@ -418,12 +420,12 @@ def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(
 
     interrupted_replace.sent = False
     monkeypatch.setattr(Path, "replace", interrupted_replace)
-    with cli._interruptible(), cli._staged(out, None) as staging:
+    with _signals._interruptible(), _staging._staged(out, None) as staging:
         for name in ("a.csv", "b.csv", "c.csv"):
             (staging / name).write_text("new")
     # Once all are in place the run has succeeded: the signal is dropped
     # (it raised after the move, and the run said it was interrupted).
-    assert cli._WRITTEN.is_set() and cli._SIGNALLED == [signal.SIGINT]
+    assert _signals._WRITTEN.is_set() and _signals._SIGNALLED == [signal.SIGINT]
     assert {p.name: p.read_text() for p in out.iterdir()} == dict.fromkeys(
         ("a.csv", "b.csv", "c.csv"), "new"
     )
@@ -437,19 +439,19 @@ def test_a_signal_as_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeyp
     out = tmp_path / "new" / "out"
     if existing:
         out.mkdir(parents=True)
-    mkdtemp = cli.tempfile.mkdtemp
+    mkdtemp = tempfile.mkdtemp
 
     def signalled_mkdtemp(*args, **kwargs):
         folder = mkdtemp(*args, **kwargs)
         os.kill(os.getpid(), signal.SIGTERM)
         return folder
 
-    monkeypatch.setattr(cli.tempfile, "mkdtemp", signalled_mkdtemp)
+    monkeypatch.setattr(tempfile, "mkdtemp", signalled_mkdtemp)
     with pytest.raises(KeyboardInterrupt) as caught:
-        with cli._interruptible(), cli._staged(out, None) as staging:
+        with _signals._interruptible(), _staging._staged(out, None) as staging:
             (staging / "a.csv").write_text("new")
     assert caught.value.args == (signal.SIGTERM,)
-    assert not cli._WRITTEN.is_set()
+    assert not _signals._WRITTEN.is_set()
     if existing:
         assert list(out.iterdir()) == []
     else:
@@ -462,10 +464,10 @@ def test_staging_folders_of_killed_runs_are_removed_by_the_next(tmp_path, capsys
     out = tmp_path / "out"
     out.mkdir()
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    killed = cli._owner(child.pid)
+    killed = _staging._owner(child.pid)
     child.kill()
     child.wait()
-    running = cli._owner(os.getpid())  # this process: a run still going
+    running = _staging._owner(os.getpid())  # this process: a run still going
     names = {
         f".jaxadapt-{killed}-abc123": False,
         f".jaxadapt-{os.getpid()}.1-xyz789": False,  # its id, another start: gone
@@ -525,7 +527,7 @@ def test_an_out_that_cannot_be_written_is_said_so_on_a_device_without_space(
     def read_only(*args, **kwargs):
         raise OSError(errno.EROFS, "Read-only file system")
 
-    monkeypatch.setattr(cli.tempfile, "mkdtemp", read_only)
+    monkeypatch.setattr(tempfile, "mkdtemp", read_only)
     usage = shutil.disk_usage
     monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(path)._replace(free=0))
     out = tmp_path / "out"
@@ -562,8 +564,8 @@ def test_a_frame_rate_too_low_for_a_video_is_refused_before_the_render(tmp_path,
 
 def test_frame_files_beyond_99999_are_outputs_too():
     # frame_100000.png did not match, so a later run never removed it.
-    assert cli.RENDER_OUTPUTS.fullmatch("frame_100000.png")
-    assert not cli.RENDER_OUTPUTS.fullmatch("frame_0001.png")
+    assert _staging.RENDER_OUTPUTS.fullmatch("frame_100000.png")
+    assert not _staging.RENDER_OUTPUTS.fullmatch("frame_0001.png")
 
 
 def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write(
@@ -1366,7 +1368,7 @@ def test_a_signal_after_the_command_leaves_its_status(tmp_path):
     # Python's exit handlers: 'Exception ignored in atexit callback' and a
     # traceback, or status 130 after a run that had written everything.
     code = (
-        "import os, signal; from jaxadapt import cli\n"
+        "import os, signal; from jaxadapt.cli import _main as cli\n"
         "def main():\n"
         "    os.kill(os.getpid(), signal.SIGINT)\n"
         "    os.kill(os.getpid(), signal.SIGTERM)\n"
@@ -1386,13 +1388,13 @@ def test_a_signal_after_the_command_leaves_its_status(tmp_path):
 def test_a_signal_after_the_outputs_are_in_place_is_a_success(tmp_path, capsys, monkeypatch):
     # The outputs all moved into --out, then a SIGTERM: exit status 0 and
     # the run's own summary (it said "interrupted" with status 143).
-    move = cli._move_into_place
+    move = _staging._move_into_place
 
     def move_then_signal(*args):
         move(*args)
         os.kill(os.getpid(), signal.SIGTERM)
 
-    monkeypatch.setattr(cli, "_move_into_place", move_then_signal)
+    monkeypatch.setattr(_staging, "_move_into_place", move_then_signal)
     out = tmp_path / "o"
     status = main(["render", "--scene", "flash", *SMALL, "--format", "pfm", "--out", str(out)])
     said = capsys.readouterr()

@@ -91,7 +91,7 @@ def test_importing_the_library_does_not_import_colour_science():
     code = (
         "import sys, jaxadapt, jaxadapt.cli, jaxadapt.pipeline, jaxadapt.figures; "
         "from jaxadapt.operators import jacobs2015, classic; "
-        "jaxadapt.cli.build_parser(); print('colour' in sys.modules)"
+        "jaxadapt.cli._main.build_parser(); print('colour' in sys.modules)"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.stdout.strip() == "False", result.stderr

@@ -455,3 +455,63 @@ def compare(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
         rank_biserial=r,
         test=test,
     )
+
+
+#: Columns of ``group_test.csv``: each condition against the control.
+GROUP_TEST_COLUMNS = (
+    "condition",
+    "control",
+    "median",
+    "median_control",
+    "shift",
+    "rank_biserial",
+    "W",
+    "z",
+    "p",
+    "p_exact",
+    "n",
+    "n_control",
+)
+
+
+def group_tests(table, control, method="auto"):
+    """Each condition's PSEs against the ``control``'s (:func:`compare`), as
+    the rows of ``group_test.csv`` (:data:`GROUP_TEST_COLUMNS`); none when
+    the table has no such condition.
+
+    ``table`` has a ``condition`` and a ``pse`` per group (a fit table of
+    :mod:`~jaxadapt.psychophysics.trials`); PSEs that are NaN (the data
+    place none) are left out. ``method`` is :func:`ranksum`'s.
+    """
+    condition = np.asarray(table.condition)
+    placed = np.isfinite(table.pse)  # NaN: the data place no PSE (trials.undetermined)
+    pse = np.where(placed, table.pse, 0.0)
+    rows = []
+    for other in dict.fromkeys(table.condition):
+        if other == control or control not in condition:
+            continue
+        x, y = condition == other, condition == control
+        c = compare(
+            jnp.asarray(pse[x]),
+            jnp.asarray(pse[y]),
+            x_mask=jnp.asarray(placed[x]),
+            y_mask=jnp.asarray(placed[y]),
+            method=method,
+        )
+        rows.append(
+            {
+                "condition": other,
+                "control": control,
+                "median": float(c.median_x),
+                "median_control": float(c.median_y),
+                "shift": float(c.shift),
+                "rank_biserial": float(c.rank_biserial),
+                "W": float(c.test.statistic),
+                "z": float(c.test.z),
+                "p": float(c.test.p),
+                "p_exact": "true" if bool(c.test.exact) else "false",
+                "n": int(c.test.n_x),
+                "n_control": int(c.test.n_y),
+            }
+        )
+    return rows

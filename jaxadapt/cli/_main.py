@@ -1,0 +1,116 @@
+"""The program's entry: parse, run the command, turn its errors into one
+line and its outcome into the exit status."""
+
+import contextlib
+import os
+import signal
+import sys
+
+from jaxadapt import runtime
+from jaxadapt._program import INTERRUPTED, take_signals
+from jaxadapt.cli import psychometric, render
+from jaxadapt.cli._options import UsageError, _Parser, _version
+from jaxadapt.cli._output import _message
+from jaxadapt.cli._signals import _SIGNALLED, _WRITTEN, _interruptible
+
+
+def build_parser():
+    """The program's parser: its options, and each command's (declared by
+    the command's module)."""
+
+    parser = _Parser(
+        prog="jaxadapt",
+        description="Simulate time-dependent visual adaptation to HDR scenes "
+        "and render what a viewer would see on an ordinary display.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    render.add_parser(sub)
+    psychometric.add_parser(sub)
+    return parser
+
+
+def main(argv=None):
+    """Run the command of ``argv`` (by default the command line's); return its
+    exit status. Signals interrupt it from the parsing of its arguments to
+    its last line (:func:`_interruptible`): the one line of
+    :data:`~jaxadapt._program.INTERRUPTED` and the shell's status,
+    128 + the signal; 0 once the outputs are all in place."""
+    try:
+        with _interruptible():
+            return _command(argv)
+    except KeyboardInterrupt as e:
+        if _WRITTEN.is_set():  # only a handler restored after the run can raise here
+            return 0
+        with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
+            print(INTERRUPTED, file=sys.stderr)
+        return 128 + (e.args[0] if e.args else signal.SIGINT)
+
+
+def _command(argv):
+    """Parse ``argv`` and run its command; its errors as one line and status 2."""
+    from rich.console import Console
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
+    runtime.cache_compilations()  # later runs reuse this one's compiled programs
+    # Warnings and progress on stderr, never wrapped inside a number or a path
+    console = Console(stderr=True, soft_wrap=True)
+    import equinox as eqx
+    import jax
+
+    if _SIGNALLED:  # an interrupt that a garbage-collector callback swallowed
+        raise KeyboardInterrupt(_SIGNALLED[0])
+    try:
+        if args.command == "render":
+            render.render(args, console)
+        elif args.command == "psychometric" and args.action == "simulate":
+            psychometric.simulate(args, console)
+        elif args.command == "psychometric":
+            psychometric.fit(args, console)
+    except MemoryError:
+        print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)
+        return 2
+    except (UsageError, ValueError, FileNotFoundError, OSError, eqx.EquinoxRuntimeError) as e:
+        print(f"jaxadapt: error: {_message(e)}", file=sys.stderr)
+        return 2
+    except jax.errors.JaxRuntimeError as e:
+        if "RESOURCE_EXHAUSTED" not in str(e):
+            raise
+        print(
+            f"jaxadapt: error: out of memory ({_message(e)}); try {_smaller(args)}",
+            file=sys.stderr,
+        )
+        return 2
+    return 0
+
+
+def run():
+    """The command line's program: :func:`main` on its arguments, then exit
+    with its status (see :func:`jaxadapt._program.run`, which calls it).
+
+    Signals that come after :func:`main` has returned are remembered and
+    dropped: its status stands (one that reached Python's exit handlers
+    printed an "Exception ignored in atexit callback" traceback). An
+    interrupted run leaves through ``os._exit``, once :func:`main` has
+    cleaned up and said so: the computation it interrupted may still be
+    running on XLA's threads, and Python's finalisation, which frees what
+    they use, crashed 3 of 8 runs sent SIGTERM during a bootstrap ("pure
+    virtual method called", "corrupted size vs. prev_size", a segmentation
+    fault: status 134 or 139 instead of 143).
+    """
+    take_signals(lambda signum, frame: _SIGNALLED.append(signum))  # main's restore these
+    status = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if _SIGNALLED:
+        os._exit(status)
+    sys.exit(status)
+
+
+def _smaller(args):
+    """What to make smaller when the command of ``args`` runs out of memory."""
+    if args.command == "render":
+        return "a smaller --chunk, --size or --background-scale"
+    return {"fit": "fewer --resamples", "simulate": "fewer --observers"}[args.action]

@@ -1,0 +1,344 @@
+"""``jaxadapt psychometric fit`` and ``simulate``: psychometric fits of a
+trial table with their group test, and simulated experiments of the 2015
+paper."""
+
+from pathlib import Path
+
+import numpy as np
+
+from jaxadapt.cli._options import UsageError, _folder, _seed
+from jaxadapt.cli._output import _report
+from jaxadapt.cli._staging import FIT_OUTPUTS, _staged
+
+
+def add_parser(sub):
+    """Declare ``jaxadapt psychometric fit`` and ``simulate`` on the subparsers ``sub``."""
+    psychometric = sub.add_parser(
+        "psychometric",
+        help="analyse constant-stimuli experiments (Jacobs et al. 2015, §4)",
+        description="Psychometric analysis of a method-of-constant-stimuli experiment.",
+    )
+    psy = psychometric.add_subparsers(dest="action", required=True, metavar="ACTION")
+    fit = psy.add_parser(
+        "fit",
+        help="fit cumulative Gaussians per participant and condition, and compare conditions",
+        description="Fit P(x) = Phi((x - PSE) / sigma) by maximum likelihood (a probit GLM, "
+        "as MATLAB's glmfit in the paper) to every (participant, condition) of a trial "
+        "table, with bootstrap intervals for the PSE; compare the conditions' PSEs with the "
+        "Wilcoxon rank-sum test. Writes fits.csv, group_test.csv (when the table has the "
+        "control condition and another), psychometric.png (Fig. 13) and pse.png (Fig. 14) "
+        "into --out.",
+    )
+    fit.add_argument(
+        "trials",
+        type=Path,
+        metavar="TRIALS.csv",
+        help="columns participant, condition, level (log10 relative to the standard), "
+        "response (1: test brighter); or level, n_yes, n_total",
+    )
+    fit.add_argument(
+        "--out", type=_folder, default=Path("out"), help="output folder (default ./out)"
+    )
+    fit.add_argument(
+        "--resamples",
+        type=int,
+        default=1000,
+        help="bootstrap resamples per group for the PSE interval (0: Wald interval); default 1000",
+    )
+    fit.add_argument(
+        "--control",
+        default=None,
+        help="condition the others are compared with (default: control, if the table has it)",
+    )
+    fit.add_argument("--seed", type=_seed, default=None, help="seed of the bootstrap (default 0)")
+    fit.add_argument(
+        "--keep-undetermined",
+        action="store_true",
+        help="write the estimates of groups whose data do not determine the fit (all "
+        "answers the same, separation, one level, no slope), which the fit's prior sets, "
+        "and enter them in the group test (default: NaN in fits.csv, left out of the test)",
+    )
+    fit.add_argument(
+        "--ranksum",
+        choices=("auto", "exact", "asymptotic"),
+        default=None,
+        help="where the rank-sum test's p comes from: the exact null distribution, the "
+        "normal approximation, or auto (default: exact when the smaller group has at most "
+        "8 PSEs and none are tied, as SciPy's mannwhitneyu; the paper's p of its two groups "
+        "of 11 is the exact one)",
+    )
+    simulate = psy.add_parser(
+        "simulate",
+        help="simulate an experiment of the 2015 paper with model observers",
+        description="Simulate the afterimage or mesopic experiment of Jacobs et al. (2015, "
+        "§4) with model observers drawn from a population: the stimuli are rendered with "
+        "the 2015 operator, each observer compares the brightness of test and standard "
+        "(log luminance plus weighted cues, with noise, bias and lapses) on every trial of "
+        "the paper's design, and observers below 70% correct in training are excluded. "
+        "Writes trials.csv (readable by 'jaxadapt psychometric fit'), observers.csv and "
+        "stimuli.csv into --out.",
+    )
+    simulate.add_argument(
+        "--protocol",
+        required=True,
+        metavar="afterimage|mesopic",
+        help="the experiment: afterimage (§4.1) or mesopic (§4.2)",
+    )
+    simulate.add_argument(
+        "--observers", type=int, required=True, metavar="N", help="number of observers"
+    )
+    simulate.add_argument(
+        "--weight",
+        action="append",
+        default=[],
+        metavar="CUE=W",
+        help="weight of a cue (afterimage, desaturation, blur) in log10 units of "
+        "brightness per unit of cue, the same for every observer, repeatable (default: 0, "
+        "observers who judge luminance only); e.g. --weight desaturation=-0.1 makes "
+        "desaturated tests look darker",
+    )
+    simulate.add_argument(
+        "--seed", type=_seed, default=0, help="seed of the simulation (default 0)"
+    )
+    simulate.add_argument(
+        "--out", type=_folder, default=Path("out"), help="output folder (default ./out)"
+    )
+
+
+# -- outputs ------------------------------------------------------------------
+
+
+# -- the render command -------------------------------------------------------
+
+
+def fit(args, console):
+    """``jaxadapt psychometric fit``: fits, group tests and figures into ``--out``."""
+    import jax
+    from rich.progress import Progress
+
+    from jaxadapt import figures, io
+    from jaxadapt.psychophysics import stats, trials
+
+    if args.resamples < 0 or args.resamples == 1:
+        raise UsageError(
+            f"--resamples: expected 0 (a Wald interval) or at least 2, got {args.resamples}"
+        )
+    if args.seed is not None and args.resamples == 0:
+        raise UsageError("--seed: seeds the bootstrap, which --resamples 0 leaves out")
+    trial_table = trials.read_trials(args.trials)
+    conditions = list(dict.fromkeys(trial_table.condition))
+    if args.control is not None and args.control not in conditions:
+        raise UsageError(
+            f"--control: expected one of the conditions of {args.trials} "
+            f"({', '.join(map(str, conditions))}), got {args.control!r}"
+        )
+    control = args.control or "control"
+    groups = trials.group_trials(trial_table)
+    tested = [c for c in conditions if c != control] if control in conditions else []
+    if not tested:
+        no_test = (
+            f"no group test: {args.trials} has one condition, {conditions[0]!r}; "
+            "a group test compares two"
+            if len(conditions) == 1
+            else f"no group test: {args.trials} has no condition {control!r} to compare with "
+            f"(conditions: {', '.join(map(str, conditions))}); name one with --control"
+        )
+        if args.ranksum is not None:
+            raise UsageError(f"--ranksum: applies to the group test, and there is none ({no_test})")
+        console.print(no_test)
+    method = args.ranksum or "auto"
+    size = {c: groups.condition.count(c) for c in conditions}
+    for c in tested if method == "exact" else ():
+        too_large = stats.exact_too_large(size[c], size[control])
+        if too_large:
+            raise UsageError(
+                f"--ranksum exact: {too_large}; use --ranksum asymptotic (at these sizes the "
+                "normal approximation is close)"
+            )
+    out = args.out
+    written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
+    if not tested:
+        written.remove("group_test.csv")
+    with _staged(out, console, FIT_OUTPUTS, keep=[args.trials]) as staging:
+        # In float64, as statsmodels and MATLAB fit: in float32 the
+        # log-likelihood of a few thousand trials a level is off by 0.01
+        # (binomial terms that cancel), and its fits stop at slopes whose
+        # rounding matters; the group test's normal tail 2 Phi(-|z|) is 0 in
+        # float32 from z = 13.
+        bar = Progress(console=console, transient=True, disable=not console.is_terminal)
+        with jax.enable_x64(True), bar:
+            count = len(groups.participant)
+            task = bar.add_task(f"fitting {count} group{'s' * (count > 1)}", total=count)
+            key = jax.random.key(args.seed or 0)
+            table = trials.fit_groups(
+                groups,
+                key=key,
+                n_resamples=args.resamples,
+                progress=lambda done: bar.advance(task, done),
+                keep_undetermined=args.keep_undetermined,
+            )
+            rows = stats.group_tests(table, control, method)
+        _warn_undetermined(console, groups, table, args.keep_undetermined, bool(rows))
+        trials.write_fits(staging / "fits.csv", table)
+        if rows:
+            with open(staging / "group_test.csv", "w", newline="") as f:
+                writer = io.csv_writer(f, stats.GROUP_TEST_COLUMNS)
+                writer.writeheader()
+                writer.writerows(rows)
+        figures.plot_psychometric(staging / "psychometric.png", groups, table)
+        figures.plot_pse(staging / "pse.png", table, rows)
+    for row in rows:
+        _report(
+            f"{row['condition']} vs {row['control']}: median PSE {_signed(row['median'])} vs "
+            f"{_signed(row['median_control'])} log units, rank-sum p = {row['p']:.3g} "
+            f"({'exact' if row['p_exact'] == 'true' else 'normal approximation'}; "
+            f"n = {row['n']}, {row['n_control']})"
+        )
+    _report(f"wrote {', '.join(written)} to {out}/")
+
+
+def _signed(value, digits=3):
+    """``value`` with its sign and ``digits`` decimals, 0 as ``+0.000`` (not ``-0.000``)."""
+    return f"{round(value, digits) + 0.0:+.{digits}f}"
+
+
+#: Groups named one by one in the warnings of :func:`_warn_undetermined`: a
+#: table of 10,000 groups wrote thousands of lines.
+MAX_GROUP_WARNINGS = 10
+
+
+def _warn_undetermined(console, groups, table, kept, tested):
+    """Say which groups' data do not determine their fit: those that place
+    no PSE (every response the same, one level, or no slope) and those whose
+    levels separate the responses, whose PSE lies somewhere between two
+    levels (:func:`~jaxadapt.psychophysics.trials.fit_groups`); and whether
+    the group test (``tested``) left them out or, with
+    ``--keep-undetermined`` (``kept``), took the fit's prior-set PSEs."""
+    from jaxadapt.psychophysics import fit as psyfit
+    from jaxadapt.psychophysics.trials import undetermined
+
+    flags = np.asarray(table.flags)
+    written = "are its prior's, not the data's" if kept else "are NaN"
+    groups_open = np.flatnonzero(undetermined(flags))
+    if len(groups_open) > MAX_GROUP_WARNINGS:
+        console.print(
+            f"warning: the data of {len(groups_open)} groups do not determine their fit; "
+            f"the first {MAX_GROUP_WARNINGS} follow, the flags of all are in fits.csv"
+        )
+    for i in groups_open[:MAX_GROUP_WARNINGS]:
+        who = f"participant {table.participant[i]}, condition {table.condition[i]}"
+        low, high = table.pse_low[i], table.pse_high[i]
+        if flags[i] & psyfit.NO_PSE:
+            why = ", ".join(psyfit.flag_names(int(flags[i])))
+            if np.isinf(low) and np.isinf(high):
+                said = f"the data place no PSE ({why})"
+            else:
+                side = f"below {high:+.3g}" if np.isinf(low) else f"above {low:+.3g}"
+                said = f"the data place the PSE only {side} log units ({why})"
+        elif low < high:
+            said = (
+                "the levels separate the 'no' from the 'yes' responses, so the data place "
+                f"the PSE only between {low:+.3g} and {high:+.3g} log units and bound sigma "
+                f"below {table.sigma_max[i]:.3g}"
+            )
+        else:
+            said = (
+                f"the responses change at one level, {low:+.3g} log units (one answer on "
+                "either side of it: quasi-complete separation), and bound sigma below "
+                f"{table.sigma_max[i]:.3g} without fixing it"
+            )
+        console.print(
+            f"warning: {who}: {said}; its PSE and slope in fits.csv {written}", soft_wrap=True
+        )
+    left_out = int(np.sum(~np.isfinite(table.pse)))
+    if tested and left_out:
+        console.print(
+            f"the group test leaves out the {left_out} group{'s' * (left_out > 1)} whose data "
+            "place no PSE (--keep-undetermined enters their prior-set PSEs)",
+            soft_wrap=True,
+        )
+
+
+def _weights(items, cues):
+    """``--weight CUE=W`` options as a weight per cue (0 where not given)."""
+    weights, given = dict.fromkeys(cues, 0.0), set()
+    for item in items:
+        name, _, value = item.partition("=")
+        if name.strip() not in weights:
+            raise UsageError(
+                f"--weight: expected CUE=W with CUE one of {', '.join(cues)}, got {item!r}"
+            )
+        if name.strip() in given:
+            raise UsageError(f"--weight: expected each cue once, got {name.strip()} again")
+        given.add(name.strip())
+        try:
+            weights[name.strip()] = float(value)
+        except ValueError:
+            raise UsageError(f"--weight: expected a number after '=', got {item!r}") from None
+        if not np.isfinite(weights[name.strip()]):
+            raise UsageError(f"--weight: expected a finite number, got {item!r}")
+    return list(weights.values())
+
+
+def simulate(args, console):
+    """``jaxadapt psychometric simulate``: a simulated experiment into ``--out``."""
+    import dataclasses
+
+    import jax
+
+    from jaxadapt import io
+    from jaxadapt.psychophysics import design
+    from jaxadapt.psychophysics import observer as obs
+    from jaxadapt.psychophysics.trials import csv_cell
+
+    if args.protocol not in design.PROTOCOLS:
+        raise UsageError(
+            f"--protocol: expected one of {', '.join(design.PROTOCOLS)}, got {args.protocol!r}"
+        )
+    if args.observers < 1:
+        raise UsageError(f"--observers: expected a positive number, got {args.observers}")
+    protocol = design.PROTOCOLS[args.protocol]
+    population = dataclasses.replace(
+        obs.POPULATIONS[args.protocol], weights=_weights(args.weight, obs.CUES)
+    )
+    # --out is checked (and staged) before the minutes of simulating
+    with _staged(args.out, console) as staging:
+        render_key, simulate_key = jax.random.split(jax.random.key(args.seed))
+        stimuli = obs.render_stimuli(protocol, key=render_key)
+        experiment = obs.simulate(simulate_key, protocol, stimuli, population, args.observers)
+        pse = np.asarray(jax.vmap(lambda o: obs.true_pse(stimuli, o))(experiment.observers))
+        observers = {
+            "participant": obs.participant_names(args.observers),
+            **{
+                name: np.asarray(getattr(experiment.observers, name))
+                for name in ("noise", "bias", "order_bias", "lapse")
+            },
+            **{
+                f"weight_{cue}": np.asarray(experiment.observers.weights[:, i])
+                for i, cue in enumerate(obs.CUES)
+            },
+            **{f"pse_{c}": pse[:, i] for i, c in enumerate(protocol.conditions)},
+            "excluded": np.asarray(experiment.excluded),
+        }
+        d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
+        n_rows = obs.write_trials(staging / "trials.csv", protocol, experiment)
+        with open(staging / "observers.csv", "w", newline="") as f:
+            writer = io.csv_writer(f)
+            writer.writerow(observers)
+            for row in zip(*observers.values(), strict=True):
+                writer.writerow([csv_cell(v) for v in row])
+        with open(staging / "stimuli.csv", "w", newline="") as f:
+            writer = io.csv_writer(f)
+            writer.writerow(
+                ["condition", "level", "d_log_luminance", *(f"d_{c}" for c in obs.CUES)]
+            )
+            for c, condition in enumerate(protocol.conditions):
+                for i, level in enumerate(protocol.levels):
+                    cells = [level, d_lum[c, i], *d_cues[c, i]]
+                    writer.writerow([condition, *(csv_cell(v) for v in cells)])
+    excluded = int(np.sum(experiment.excluded))
+    _report(
+        f"{args.protocol}: {args.observers} observers, {excluded} excluded (training below "
+        f"{protocol.exclusion:.0%} correct); wrote trials.csv ({n_rows} trials), "
+        f"observers.csv, stimuli.csv to {args.out}/"
+    )

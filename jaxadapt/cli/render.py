@@ -1,0 +1,598 @@
+"""``jaxadapt render``: HDR frames or a built-in scene through an operator,
+streamed to display frames, a video, a contact sheet, a plot and
+``diagnostics.csv``."""
+
+import contextlib
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from jaxadapt.cli._options import (
+    FPS_RANGE,
+    MP4_MIN_FPS,
+    UsageError,
+    _default_sizes,
+    _folder,
+    _frame_rate,
+    _memory,
+    _pixels_per_degree,
+    _positive,
+    _seed,
+    _size,
+)
+from jaxadapt.cli._output import _report
+from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
+
+
+def add_parser(sub):
+    """Declare ``jaxadapt render`` and its options on the subparsers ``sub``."""
+    from jaxadapt.operators import OPERATORS, TONE_CURVE_NAMES
+    from jaxadapt.operators.goal import BACKGROUNDS, GOALS
+    from jaxadapt.scenes import SCENES
+
+    render = sub.add_parser(
+        "render",
+        help="tone-map an HDR sequence with time-dependent adaptation (Pattanaik et al. 2000)",
+        description="Tone-map an HDR frame sequence (absolute cd/m2) the way an observer "
+        "whose eyes adapt over time would see it on an ordinary display (Pattanaik et al. "
+        "2000), or with one of the classic tone curves (--operator). With no FILE, renders "
+        "a built-in scene. Writes display frames, a contact sheet, a plot of the adaptation "
+        "state and diagnostics.csv into --out.",
+    )
+    render.add_argument(
+        "files",
+        nargs="*",
+        metavar="FILE",
+        help="HDR input (EXR, Radiance HDR, PFM, float TIFF): one image, or the frames of "
+        "a sequence in order (e.g. a shell glob of a numbered sequence)",
+    )
+    render.add_argument(
+        "--scene",
+        choices=sorted(SCENES),
+        default=None,
+        help="built-in scene when no FILE is given (default: tunnel)",
+    )
+    render.add_argument(
+        "--size",
+        type=_size,
+        default=None,
+        metavar="WxH",
+        help=f"frame size of the built-in scene (default: {_default_sizes(SCENES)}; files keep "
+        "their own)",
+    )
+    render.add_argument(
+        "--duration",
+        type=_positive,
+        default=None,
+        metavar="S",
+        help="length of the built-in scene in seconds (default: the scene's own)",
+    )
+    render.add_argument(
+        "--fps",
+        type=_frame_rate,
+        default=None,
+        help="frames per second, 1e-5 to 1e6 (default: for FILEs the first file's "
+        "FramesPerSecond (an EXR's framesPerSecond), else 30; the scene's own "
+        "for a built-in scene: 30, or one frame per 30 ms for title-step; the flash scene adds a "
+        "frame where the flash starts or ends between two, so that the simulation holds it for "
+        "exactly 1/8 s: the outputs show these frames too, at the same rate)",
+    )
+    render.add_argument(
+        "--multiplier",
+        type=_positive,
+        default=1.0,
+        help="multiply input values by this to calibrate them to cd/m2 (default: 1)",
+    )
+    render.add_argument(
+        "--operator",
+        choices=list(OPERATORS),
+        default="pattanaik2000",
+        help="the operator: pattanaik2000 (time-dependent adaptation, the default), "
+        "jacobs2015 (gaze-driven adaptation with afterimages, Purkinje shift, mesopic colour "
+        "and acuity loss; its frames are display-encoded and dithered, so --encoding does "
+        "not apply), or a static tone curve of the HDR-imaging chapter "
+        f"({', '.join(TONE_CURVE_NAMES)})",
+    )
+    render.add_argument(
+        "--gaze",
+        type=Path,
+        default=None,
+        metavar="CSV",
+        help="gaze recording: rows t,x,y (s, pixels), each held until the next; x,y empty "
+        "or nan during a blink, which holds the fixation before it; default: the scene's "
+        "own path, the centre of the frame for files",
+    )
+    render.add_argument(
+        "--seed",
+        type=_seed,
+        default=None,
+        help="seed of the random draws of jacobs2015 (acuity noise, dithering); default 0",
+    )
+    render.add_argument(
+        "--background",
+        choices=tuple(BACKGROUNDS),
+        default="global",
+        help="background (adapting) luminance: one per frame, global (the log average, the "
+        "default) or arithmetic (the mean), or a local estimate per pixel (box, gaussian, "
+        "bilateral, adaptive, multiscale; bilateral's time grows with the square of "
+        "--background-scale); with pattanaik2000 a local background gives per-pixel, "
+        "time-dependent adaptation",
+    )
+    render.add_argument(
+        "--background-scale",
+        type=_positive,
+        default=None,
+        metavar="PX",
+        help="size s of the local background estimator, pixels (default: 8): the box "
+        "||p - i|| < s of box (half-width round(s) - 1, so at least 1) and the finest box "
+        "of adaptive and multiscale, a Gaussian exp(-d^2/s^2) for gaussian and bilateral",
+    )
+    render.add_argument(
+        "--adaptation-goal",
+        choices=GOALS,
+        default=None,
+        help="how pattanaik2000 finds the adaptation goal of each frame (default: the "
+        "scene's own; log_average for files)",
+    )
+    render.add_argument(
+        "--pixels-per-degree",
+        type=_pixels_per_degree,
+        default=None,
+        help="resolution of the frames at the eye, 1e-3 to 1e4: for the foveal goal, and for "
+        "jacobs2015's fovea, acuity loss and afterimage blur (default: the scene's own; 30 for "
+        "files)",
+    )
+    render.add_argument(
+        "--out",
+        type=_folder,
+        default=Path("out"),
+        help="output folder (default: ./out); what an earlier render wrote there (listed in "
+        "its .jaxadapt-render) is replaced, and so is a file with the name of an output of "
+        "this one; other files and the inputs are left alone",
+    )
+    render.add_argument(
+        "--format",
+        action="append",
+        choices=FORMATS,
+        default=None,
+        dest="formats",
+        help="output format, repeatable: png (frames, as --encoding), mp4 (H.264 video, "
+        "BT.709, tagged with its encoding; an odd width or height is padded by one edge "
+        "pixel, as 4:2:0 needs), exr or pfm (linear display values in [0, 1], one file per "
+        "frame; for jacobs2015 its display-encoded J); default: png and mp4",
+    )
+    render.add_argument(
+        "--encoding",
+        choices=("srgb", "gamma"),
+        default=None,
+        help="display encoding of png and mp4 output (default: srgb; gamma is 2.2); not for "
+        "jacobs2015, whose display values are its own gamma encoding",
+    )
+    render.add_argument(
+        "--chunk",
+        type=int,
+        default=None,
+        help="frames computed per call (default: as many as --memory allows, at most 32)",
+    )
+    render.add_argument(
+        "--allow-large",
+        action="store_true",
+        help=f"render even more than {MAX_FRAMES:,} frames, or more than the free space of "
+        "--out may hold (refused by default, with the estimate)",
+    )
+    render.add_argument(
+        "--memory",
+        type=_memory,
+        default=None,
+        metavar="SIZE",
+        help="memory for frames in flight (read ahead, computed, written behind), e.g. "
+        "500M or 2G (default: 1G); it sets the frames per call, which --chunk overrides",
+    )
+
+
+FORMATS = ("png", "mp4", "exr", "pfm")
+
+
+CONTACT_FRAMES = 12
+
+
+#: Size of a local background estimator unless --background-scale says otherwise, pixels.
+BACKGROUND_SCALE = 8.0
+
+
+def _check_options(args):
+    """Reject options that the chosen input or operator would ignore."""
+    if args.files:
+        for option in ("scene", "size", "duration"):
+            if getattr(args, option) is not None:
+                raise UsageError(f"--{option}: applies to a built-in scene, not to FILE input")
+    if args.adaptation_goal is not None and args.operator != "pattanaik2000":
+        raise UsageError(
+            f"--adaptation-goal: applies to --operator pattanaik2000, not {args.operator}"
+        )
+    if args.operator == "jacobs2015" and args.background != "global":
+        raise UsageError(
+            "--background: does not apply to --operator jacobs2015, which adapts to the "
+            "foveal luminance and finds local luminance itself"
+        )
+    if args.operator == "jacobs2015" and args.encoding is not None:
+        raise UsageError(
+            "--encoding: does not apply to --operator jacobs2015, whose display values are "
+            "its own gamma encoding"
+        )
+    if args.seed is not None and args.operator != "jacobs2015":
+        raise UsageError(f"--seed: applies to --operator jacobs2015, not {args.operator}")
+    static = args.operator not in ("pattanaik2000", "jacobs2015")
+    for option in ("gaze", "pixels_per_degree"):
+        if static and getattr(args, option) is not None:
+            raise UsageError(
+                f"--{option.replace('_', '-')}: does not apply to the static tone curve "
+                f"{args.operator}"
+            )
+    if args.background_scale is not None and args.background in ("global", "arithmetic"):
+        raise UsageError(
+            f"--background-scale: applies to a local --background, not {args.background}"
+        )
+    if args.background_scale is not None:
+        from jaxadapt.operators.goal import check_background
+
+        try:
+            check_background(
+                args.background, args.background_scale, ("--background", "--background-scale")
+            )
+        except ValueError as error:
+            raise UsageError(str(error)) from None
+    if args.chunk is not None and args.chunk < 1:
+        raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
+
+
+#: The most frames a render writes without --allow-large: 55 minutes at 30 frames/s.
+MAX_FRAMES = 100_000
+
+
+#: Bytes a pixel of a frame takes at most in each output format (PNG: 8 bits a
+#: channel before compression; EXR and PFM: float32; MP4: a generous bound
+#: of H.264 at the quality written).
+BYTES_PER_PIXEL = {"png": 3, "exr": 12, "pfm": 12, "mp4": 0.1}
+
+
+def _check_work(frames, shape, formats, out, frames_from):
+    """Refuse a render of more than :data:`MAX_FRAMES` frames, or whose
+    outputs could outgrow the free space of ``out``'s device (an upper bound
+    from :data:`BYTES_PER_PIXEL`): a UsageError with the estimate and the
+    option that goes ahead. A render at 1e6 frames/s staged 840,000 files
+    in 10 minutes on its way to 80 GB, more than the disk held."""
+    H, W = shape
+    size = frames * H * W * sum(BYTES_PER_PIXEL[f] for f in formats)
+    existing = next(p for p in [out.resolve(), *out.resolve().parents] if p.exists())
+    free = shutil.disk_usage(existing).free
+    work = f"{frames:,} frames of {W}x{H} as {', '.join(formats)}, up to {_bytes(size)}"
+    if frames > MAX_FRAMES:
+        raise UsageError(
+            f"{frames_from}: the render would write {work}, more than {MAX_FRAMES:,} "
+            "frames; render fewer, or pass --allow-large to go ahead"
+        )
+    if size > free:
+        raise UsageError(
+            f"--out: the render would write {work}, more than the {_bytes(free)} free on "
+            f"the device of {out}; free space, choose another --out or fewer frames, or "
+            "pass --allow-large to go ahead"
+        )
+
+
+def _bytes(n):
+    """``n`` bytes in the largest unit that keeps a number of at least 1."""
+    for unit in ("bytes", "kB", "MB", "GB"):
+        if n < 1000:
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} TB"
+
+
+def _check_scale_fits(scale, size):
+    """Refuse a ``--background-scale`` beyond the larger side of frames of
+    ``size (H, W)``, pixels: a window larger than the frame covers the
+    mirror-extended frame several times over, and the filters' memory and
+    time grow with the scale, not the frame: a scale of 1e9 on a 1x1 frame
+    took the machine's 24 GB and was killed, 1e5 on 64x48 took 677 MB and
+    17 s."""
+    if scale > max(size):
+        raise UsageError(
+            f"--background-scale: expected at most {max(size)} pixels, the frames' larger "
+            f"side, got {scale:g}"
+        )
+
+
+def _files_rate(files):
+    """The frame rate of FILEs without ``--fps``
+    (:func:`jaxadapt.pipeline.files_rate`), refused outside ``--fps``'s range."""
+    from jaxadapt import pipeline
+
+    rate = pipeline.files_rate(files)
+    if not FPS_RANGE[0] <= rate <= FPS_RANGE[1]:
+        raise UsageError(
+            f"{files[0]}: its FramesPerSecond, {rate:g}, is outside {FPS_RANGE[0]:g} to "
+            f"{FPS_RANGE[1]:g} frames/s; give --fps"
+        )
+    return rate
+
+
+def _source(args):
+    from jaxadapt import pipeline
+    from jaxadapt.scenes import SCENES
+
+    if args.files:
+        return pipeline.from_files(args.files, args.fps or _files_rate(args.files), args.multiplier)
+    kwargs = {}
+    if args.size is not None:
+        kwargs["width"], kwargs["height"] = args.size
+    if args.duration is not None:
+        kwargs["duration"] = args.duration
+    if args.fps is not None:
+        kwargs["fps"] = args.fps
+    try:
+        scene = SCENES[args.scene or "tunnel"](**kwargs)
+    except ValueError as error:  # named by the scene's arguments: name the options given
+        name, _, rest = str(error).partition(": ")
+        given = [o for o, v in (("--duration", args.duration), ("--fps", args.fps)) if v]
+        options = {"duration": "--duration", "fps": "--fps", "duration, fps": ", ".join(given)}
+        raise UsageError(f"{options.get(name, name)}: {rest}") from None
+    return pipeline.from_scene(scene, args.multiplier)
+
+
+def _warn_numbers_out_of_order(files, console):
+    """Warn when the frame numbers in the names of ``files`` (the last run of
+    digits, the rest of the names all alike) neither rise nor fall in the
+    order given: the frames are rendered in that order, and a shell's glob
+    of a sequence numbered without padding gives them sorted as text
+    (``f1 f10 f11 f2 ...``). A sequence reversed on purpose goes one way and
+    passes."""
+    parts = [re.fullmatch(r"(.*?)(\d+)(\D*)", str(f)) for f in files]
+    if len(files) < 3 or not all(parts) or len({(m[1], m[3]) for m in parts}) > 1:
+        return
+    numbers = [int(m[2]) for m in parts]
+    steps = np.sign(np.diff(numbers))
+    if np.all(steps >= 0) or np.all(steps <= 0):
+        return
+    i = int(np.argmax(steps == -steps[steps != 0][0]))  # the first step against the first
+    console.print(
+        f"warning: FILE: {files[i]} comes before {files[i + 1]}: the numbers in the names "
+        "neither rise nor fall, and the frames are rendered in the order given (a shell's "
+        "glob sorts names as text, 10 before 2: pad the numbers, or list them with ls -v)"
+    )
+
+
+def _warn_gaze_off_frame(source, shape, path, console):
+    """Warn when the gaze of ``source`` (recorded in ``path``) leaves frames
+    of ``shape`` (H, W): the operators take the nearest point of the frame
+    (:func:`jaxadapt.operators.goal.fixation`), and a recording in other
+    coordinates (normalised, or a larger screen's) would be held at the
+    frame's edges without a word; and when it holds no fixation at all, for
+    which the frame's centre is taken."""
+    H, W = shape
+    x, y = source.gaze(np.arange(len(source.times))).T
+    if not np.isfinite(x).any():
+        console.print(
+            f"warning: --gaze: {path} holds no fixation during the sequence (every sample "
+            "before its end is a blink, x and y empty or nan); the frame's centre is taken",
+            markup=False,
+            soft_wrap=True,
+        )
+    off = (x < 0) | (x > W - 1) | (y < 0) | (y > H - 1)  # False for a blink's NaN
+    if off.any():
+        i = int(np.argmax(off))
+        console.print(
+            f"warning: --gaze: {path} leaves the {W}x{H} frame at {off.sum()} of {off.size} "
+            f"frames (first ({x[i]:g}, {y[i]:g}) pixels at {source.times[i]:g} s); there the "
+            "nearest point of the frame is taken",
+            markup=False,
+            soft_wrap=True,
+        )
+
+
+def _operator(args, source, fps):
+    """The operator module, its parameters (for frames at ``fps``), the plot of
+    its diagnostics and whether its frames come display-encoded."""
+    from functools import partial
+
+    from jaxadapt import figures
+    from jaxadapt.operators import OPERATORS, classic, jacobs2015, pattanaik2000
+
+    ppd = args.pixels_per_degree or source.pixels_per_degree
+    op = OPERATORS[args.operator]
+    if op is pattanaik2000:
+        goal = args.adaptation_goal or source.goal
+        if args.adaptation_goal is not None and args.background != "global":
+            raise UsageError(
+                f"--adaptation-goal: applies to a global background, not {args.background}, "
+                "whose local estimate is each pixel's goal"
+            )
+        if args.gaze is not None and args.background == "global" and goal != "foveal":
+            raise UsageError(
+                "--gaze: pattanaik2000 reads the gaze for the foveal adaptation goal or the "
+                f"diagnostics of a local background, not for goal {goal} with a global background"
+            )
+        if args.pixels_per_degree is not None and (goal, args.background) != ("foveal", "global"):
+            raise UsageError(
+                "--pixels-per-degree: applies to the foveal adaptation goal "
+                f"(--adaptation-goal foveal, global background), not goal {goal} "
+                f"with a {args.background} background"
+            )
+        params = op.Params(
+            goal=goal,
+            pixels_per_degree=ppd,
+            background=args.background,
+            background_scale=args.background_scale or BACKGROUND_SCALE,
+        )
+        where = "goal " + goal if args.background == "global" else args.background + " background"
+        title = f"{source.name}: Pattanaik et al. 2000, {where}"
+        return op, params, partial(figures.plot_adaptation, title=title), False
+    if op is jacobs2015:
+        title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
+        params = op.Params(pixels_per_degree=ppd, afterimage_blur=op.blur_for_display(ppd, fps))
+        notes = op.diagnostics_notes(params)
+        plot = partial(figures.plot_columns, title=title, units=op.DIAGNOSTIC_UNITS, notes=notes)
+        return op, params, plot, True
+    params = classic.Params(
+        classic.TONE_CURVES[args.operator](),
+        args.background,
+        args.background_scale or BACKGROUND_SCALE,
+    )
+    title = f"{source.name}: {args.operator}, {args.background} background"
+    plot = partial(figures.plot_columns, title=title, units=classic.DIAGNOSTIC_UNITS)
+    return classic, params, plot, False
+
+
+def render(args, console):
+    """``jaxadapt render``: check, stream the frames through the operator with
+    their outputs written behind, then the diagnostics, sheet and plot."""
+    import jax
+    from rich.progress import Progress
+
+    from jaxadapt import figures, io, pipeline
+
+    source, formats, fps = _prepared(args, console)
+    op, params, plot, encoded = _operator(args, source, fps)
+    # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
+    encoding = "gamma" if encoded else args.encoding or "srgb"
+    out, T, tables = args.out, len(source.times), []
+    inputs = [*args.files, *([args.gaze] if args.gaze else [])]
+    with _staged(out, console, RENDER_OUTPUTS, keep=inputs) as staging:
+        if not args.allow_large:  # once --out is known to be writable
+            frames_from = "FILE" if args.files else "--fps, --duration"
+            _check_work(T, pipeline.frame_shape(source), formats, out, frames_from)
+        with contextlib.ExitStack() as stack:
+            send_video = (
+                stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
+                if "mp4" in formats
+                else (lambda frames: None)
+            )
+            bar = Progress(console=console, transient=True, disable=not console.is_terminal)
+            progress = stack.enter_context(bar)
+            task = progress.add_task(f"rendering {source.name}", total=T)
+            advance = lambda n: progress.advance(task, n)  # noqa: E731
+            write = _Outputs(
+                staging, formats, source, fps, (encoding, encoded), send_video, advance
+            )
+            key = jax.random.key(args.seed or 0)
+            budget = args.memory or pipeline.MEMORY_BUDGET
+            stream = pipeline.chunks(op, params, source, args.chunk, key, budget=budget)
+            with contextlib.closing(stream), pipeline.behind(write) as submit:
+                for idx, linear, table in stream:
+                    submit((idx, linear))
+                    tables.append(table)
+        table = pipeline.concatenate(tables)
+        _warn_bleached(table, console)
+        io.write_columns(staging / "diagnostics.csv", table)
+        sheet = figures.contact_sheet(np.stack(write.contact), labels=write.labels)
+        io.write_image(staging / "contact_sheet.png", sheet, encoding)
+        plot(staging / "adaptation.png", table)
+        names = sorted(path.name for path in staging.iterdir())
+    frame_files = [name for name in names if name.startswith("frame_")]
+    others = [name for name in names if not name.startswith("frame_")]
+    if frame_files:
+        others.append(f"{len(frame_files)} frame file{'s' * (len(frame_files) > 1)}")
+    _report(
+        f"wrote {len(names)} files to {out}/ ({', '.join(others)}) for {T} frame{'s' * (T > 1)}"
+    )
+
+
+def _prepared(args, console):
+    """The checked options' source of frames (with ``--gaze``), output formats
+    and nominal frame rate (frames/s), with their warnings said."""
+    from jaxadapt import pipeline
+
+    _check_options(args)
+    formats = args.formats or ["png", "mp4"]
+    source = _source(args)
+    _warn_numbers_out_of_order(args.files, console)
+    if args.background_scale is not None or args.gaze is not None:
+        shape = pipeline.frame_shape(source)
+    if args.background_scale is not None:
+        _check_scale_fits(args.background_scale, shape)
+    if args.gaze is not None:
+        source = pipeline.with_gaze(source, args.gaze)
+        _warn_gaze_off_frame(source, shape, args.gaze, console)
+    # The nominal rate: frames split at a flash's edges are shorter, none longer.
+    fps = 1.0 / float(np.max(source.dt))
+    if "mp4" in formats and fps < MP4_MIN_FPS:
+        raise UsageError(
+            f"--fps: a video (--format mp4, a default) needs at least {MP4_MIN_FPS:g} frames/s, "
+            f"got {fps:g}; choose --format png, exr or pfm"
+        )
+    return source, formats, fps
+
+
+class _Outputs:
+    """Writes a computed chunk ``(idx, linear frames)`` into the staging
+    folder, in the write-behind thread: the frame files of ``formats``, the
+    video's frames (``send_video``) and the contact sheet's frames, kept in
+    :attr:`contact` with their times in :attr:`labels`; ``advance(n)`` says
+    that ``n`` more frames are written. ``coding``: the display encoding of
+    8-bit outputs, and whether the operator's frames come display-encoded
+    (jacobs2015)."""
+
+    def __init__(self, staging, formats, source, fps, coding, send_video, advance):
+        self.staging, self.formats, self.source, self.fps = staging, formats, source, fps
+        self.encoding, encoded = coding
+        self.send_video, self.advance = send_video, advance
+        self.code_as = "linear" if encoded else self.encoding  # (display.ENCODINGS)
+        T = len(source.times)
+        self.digits = max(5, len(str(T - 1)))  # frame files sort in order
+        self.shown = set(range(min(4, T))) | set(
+            np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
+        )
+        self.contact, self.labels = [], []
+
+    def __call__(self, chunk):
+        from jaxadapt import display, figures, io
+
+        idx, linear = chunk
+        coded = None
+        if {"png", "mp4"} & set(self.formats):
+            coded = display.encode_uint8(linear, self.code_as)
+        for k in [k for k, i in enumerate(idx) if i in self.shown]:  # shrunk in linear light
+            self.contact.append(display.encode_uint8(figures.shrink(linear[k]), self.code_as))
+            self.labels.append(f"{self.source.times[idx[k]]:.3g} s")
+        for k, i in enumerate(idx):
+            name = f"frame_{i:0{self.digits}d}"
+            if "png" in self.formats:
+                io.write_image(self.staging / f"{name}.png", coded[k], self.encoding)
+            if "exr" in self.formats:
+                io.write_image(self.staging / f"{name}.exr", linear[k], fps=self.fps)
+            if "pfm" in self.formats:
+                io.write_image(self.staging / f"{name}.pfm", linear[k])
+        self.send_video(coded)  # (a no-op without mp4)
+        self.advance(len(idx))
+
+
+#: Unbleached fraction of the cone pigment below which a render warns (:func:`_warn_bleached`).
+BLEACHED = 0.01
+
+
+def _warn_bleached(table, console):
+    """Warn when the 2000 operator's diagnostics ``table`` has the cone
+    pigment all but bleached (``B_cone`` below :data:`BLEACHED`, adapted
+    above about 2e8 cd/m2). Its responses, scaled by ``B_cone`` (Eq 2),
+    then span almost nothing, and the appearance model puts the whole frame
+    near the display's black (Eq 8; ``pfstmo_pattanaik00`` renders the
+    same): the model's prediction, which looks like a failed render, and
+    which luminance far above daylight's more often means frames not in
+    cd/m2."""
+    if "B_cone" not in table:
+        return
+    B = np.asarray(table["B_cone"])
+    bleached = B < BLEACHED
+    if bleached.any():
+        i = int(np.argmin(B))
+        console.print(
+            f"warning: at {bleached.sum()} of {B.size} frames the viewer is adapted where the "
+            f"cone pigment is over {1 - BLEACHED:.0%} bleached (the most at "
+            f"{float(table['t'][i]):g} s, adapted to {float(table['A_cone'][i]):.3g} cd/m2): "
+            "the 2000 model renders such frames near the display's black, as "
+            "pfstmo_pattanaik00 does; frames not in cd/m2 take --multiplier",
+            markup=False,
+            soft_wrap=True,
+        )
