@@ -2,7 +2,7 @@
 
 100,000 simulated datasets of the afterimage protocol (5 levels, 30 trials a
 level, PSEs and spreads drawn at random) are fitted in one call of
-:func:`jaxadapt.psychophysics.fit.fit`, in float32 and in float64; compile
+:func:`jaxadapt.psychophysics.psychometric.fit`, in float32 and in float64; compile
 time is excluded, results are ``block_until_ready``-ed, and the median of the
 repeats is kept. In the same run a loop of statsmodels' probit GLM (the
 counterpart of MATLAB's ``glmfit`` used by the paper) fits the first 500 of
@@ -33,8 +33,7 @@ import statsmodels.api as sm  # noqa: E402
 from common import machine, median_seconds, write_result  # noqa: E402
 from scipy.stats import norm  # noqa: E402
 
-from jaxadapt.psychophysics import design  # noqa: E402
-from jaxadapt.psychophysics import fit as psyfit  # noqa: E402
+from jaxadapt.psychophysics import design, psychometric  # noqa: E402
 
 
 def simulate(datasets, seed=0):
@@ -77,18 +76,20 @@ def main():
     for dtype in (jnp.float32, jnp.float64):
         arrays = [jnp.asarray(a, dtype) for a in (levels, k, n)]
         start = time.perf_counter()
-        fits = jax.block_until_ready(psyfit.fit(*arrays))
+        fits = jax.block_until_ready(psychometric.fit(*arrays))
         compile_s = time.perf_counter() - start
-        run_s = median_seconds(lambda a=arrays: jax.block_until_ready(psyfit.fit(*a)), args.repeats)
+        run_s = median_seconds(
+            lambda a=arrays: jax.block_until_ready(psychometric.fit(*a)), args.repeats
+        )
         flags = np.asarray(fits.flags)
-        exists = (flags[peer] & psyfit.NO_MLE) == 0
+        exists = (flags[peer] & psychometric.NO_MLE) == 0
         runs[jnp.dtype(dtype).name] = {
             "seconds": run_s,
             "first_call_seconds": compile_s,
             "fits_per_second": args.datasets / run_s,
             "speedup_vs_statsmodels": (args.datasets / run_s) / (args.peer / peer_s),
             "converged_fraction": float(np.mean(fits.converged)),
-            "no_mle_fraction": float(np.mean((flags & psyfit.NO_MLE) > 0)),
+            "no_mle_fraction": float(np.mean((flags & psychometric.NO_MLE) > 0)),
             "pse_max_abs_diff_vs_statsmodels": float(
                 np.max(np.abs(np.asarray(fits.pse, float)[peer] - peer_pse)[exists])
             ),

@@ -32,8 +32,7 @@ import numpy as np
 from common import machine, median_seconds, write_result
 from scipy.special import ndtr
 
-from jaxadapt.psychophysics import design
-from jaxadapt.psychophysics import fit as psyfit
+from jaxadapt.psychophysics import design, psychometric
 from jaxadapt.psychophysics import observer as obs
 
 PROTOCOL = design.AFTERIMAGE
@@ -90,7 +89,7 @@ def main():
     @jax.jit
     def analyse(trials, responses):
         n_yes, n_total = design.counts(PROTOCOL, trials, responses)
-        return psyfit.fit(jnp.asarray(PROTOCOL.levels, n_yes.dtype), n_yes, n_total)
+        return psychometric.fit(jnp.asarray(PROTOCOL.levels, n_yes.dtype), n_yes, n_total)
 
     fits = jax.block_until_ready(analyse(trials, experiment.responses))
     analyse_s = median_seconds(

@@ -34,8 +34,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import NullLocator
 
 from jaxadapt.io import csv_writer
-from jaxadapt.psychophysics import design, stats
-from jaxadapt.psychophysics import fit as psyfit
+from jaxadapt.psychophysics import design, psychometric, stats
 from jaxadapt.psychophysics import observer as obs
 
 SHIFT = 0.13
@@ -75,7 +74,7 @@ def pool(key, protocol, stimuli, population, n):
     for i in range(-(-n // chunk)):
         e = obs.simulate(jax.random.fold_in(key, i), protocol, stimuli, population, chunk)
         n_yes, n_total = design.counts(protocol, e.trials, e.responses)
-        pse.append(np.asarray(psyfit.fit(protocol.levels, n_yes, n_total).pse))
+        pse.append(np.asarray(psychometric.fit(protocol.levels, n_yes, n_total).pse))
         excluded.append(np.asarray(e.excluded))
     return np.concatenate(pse)[:n], np.concatenate(excluded)[:n]
 

@@ -36,8 +36,7 @@ from scipy.stats import mannwhitneyu
 
 from jaxadapt import figures
 from jaxadapt.color import W_PHOTOPIC
-from jaxadapt.psychophysics import design, stats, trials
-from jaxadapt.psychophysics import fit as psyfit
+from jaxadapt.psychophysics import design, psychometric, stats, trials
 from jaxadapt.psychophysics import observer as obs
 
 #: §4.1.2 and §4.2.2: median manipulated PSE (log10 units) and rank-sum p.
@@ -63,7 +62,7 @@ def replications(protocol, e, n):
     """``n`` experiments of :data:`PARTICIPANTS` (consecutive observers of
     ``e``): how often each reaches p < 0.05, and the spread of its medians."""
     n_yes, n_total = design.counts(protocol, e.trials, e.responses)
-    fits = psyfit.fit(protocol.levels, n_yes, n_total)
+    fits = psychometric.fit(protocol.levels, n_yes, n_total)
     pse = fits.pse.reshape(n, PARTICIPANTS, 2)
     keep = ~e.excluded.reshape(n, PARTICIPANTS)
     c = stats.compare(pse[..., 1], pse[..., 0], x_mask=keep, y_mask=keep)

@@ -118,7 +118,7 @@ error of the minimum the linearisation there points to. A likelihood
 whose maximum lies at infinity (responses all the same, or perfectly
 separated, in a psychometric model) can be flat to rounding at the point
 the solver reaches, with a short Newton step: there only the standard
-errors' size tells (:mod:`jaxadapt.psychophysics.fit` flags such data).
+errors' size tells (:mod:`jaxadapt.psychophysics.psychometric` flags such data).
 
 Data
 ----

@@ -1124,11 +1124,11 @@ def test_pse_figure_spans_the_placed_pses(tmp_path):
     # An all-"yes" participant's PSE, set by the prior at -7.3e5, made the
     # axis run to -7e5 and flattened every other PSE onto 0.
     from jaxadapt import figures
-    from jaxadapt.psychophysics import fit as psyfit
+    from jaxadapt.psychophysics import psychometric
     from jaxadapt.psychophysics.trials import FitTable
 
     pse = np.array([-7.3e5, 0.02, -0.05, 0.12, 0.08, 0.1])
-    flags = np.array([psyfit.ALL_SAME, 0, 0, 0, 0, 0])
+    flags = np.array([psychometric.ALL_SAME, 0, 0, 0, 0, 0])
     table = FitTable(
         tuple(f"p{i}" for i in range(3)) * 2,
         ("control",) * 3 + ("test",) * 3,

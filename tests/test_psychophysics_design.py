@@ -13,7 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from jaxadapt.psychophysics import design, trials
-from jaxadapt.psychophysics import fit as F  # noqa: N812
+from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 A, M = design.AFTERIMAGE, design.MESOPIC
 many_trial_lists = jax.jit(jax.vmap(lambda key: design.trial_list(A, key)))
@@ -368,7 +368,7 @@ def test_fits_csv_numbers_read_back_exactly_whatever_numpy_printing():
 
 def test_fit_groups_writes_fits_csv(tmp_path):
     # Simulated responses of 32 participants in the afterimage protocol: 64
-    # groups, bootstrapped 200 times, the batch that test_psychophysics_fit.py
+    # groups, bootstrapped 200 times, the batch that test_psychophysics_psychometric.py
     # fits and bootstraps (so that the test suite compiles both only once).
     n_participants = 32
     t = design.trial_list(A, jax.random.key(7))

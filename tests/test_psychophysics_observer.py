@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from jaxadapt.psychophysics import design, trials
-from jaxadapt.psychophysics import fit as F  # noqa: N812
 from jaxadapt.psychophysics import observer as O  # noqa: N812
+from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 A, M = design.AFTERIMAGE, design.MESOPIC
 AFTERIMAGE, DESATURATION, BLUR = range(3)
@@ -31,7 +31,7 @@ def mesopic_stimuli():
     return O.render_stimuli(M, key=jax.random.key(0), width=48, height=32, fps=4.0)
 
 
-#: Batch of the fits: that of test_psychophysics_fit.py, so that the test
+#: Batch of the fits: that of test_psychophysics_psychometric.py, so that the test
 #: suite compiles the fit once for both files.
 FIT_BATCH = 64
 

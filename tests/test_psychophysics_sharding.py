@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxadapt.psychophysics import fit as F  # noqa: N812
+from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 SCRIPT = textwrap.dedent(
     """
@@ -26,7 +26,7 @@ SCRIPT = textwrap.dedent(
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     import numpy as np
-    from jaxadapt.psychophysics import fit as F
+    from jaxadapt.psychophysics import psychometric as F
 
     with open(sys.argv[1]) as file:
         data = json.load(file)

@@ -214,7 +214,7 @@ def _warn_undetermined(console, groups, table, kept, tested):
     levels (:func:`~jaxadapt.psychophysics.trials.fit_groups`); and whether
     the group test (``tested``) left them out or, with
     ``--keep-undetermined`` (``kept``), took the fit's prior-set PSEs."""
-    from jaxadapt.psychophysics import fit as psyfit
+    from jaxadapt.psychophysics import psychometric
     from jaxadapt.psychophysics.trials import undetermined
 
     flags = np.asarray(table.flags)
@@ -228,8 +228,8 @@ def _warn_undetermined(console, groups, table, kept, tested):
     for i in groups_open[:MAX_GROUP_WARNINGS]:
         who = f"participant {table.participant[i]}, condition {table.condition[i]}"
         low, high = table.pse_low[i], table.pse_high[i]
-        if flags[i] & psyfit.NO_PSE:
-            why = ", ".join(psyfit.flag_names(int(flags[i])))
+        if flags[i] & psychometric.NO_PSE:
+            why = ", ".join(psychometric.flag_names(int(flags[i])))
             if np.isinf(low) and np.isinf(high):
                 said = f"the data place no PSE ({why})"
             else:

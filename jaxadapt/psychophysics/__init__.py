@@ -3,7 +3,7 @@ simulated observers.
 
 - :mod:`~jaxadapt.psychophysics.design`: the method of constant stimuli and
   the 2015 paper's two protocols as data;
-- :mod:`~jaxadapt.psychophysics.fit`: cumulative-Gaussian (probit) fits with
+- :mod:`~jaxadapt.psychophysics.psychometric`: cumulative-Gaussian (probit) fits with
   bootstrap intervals;
 - :mod:`~jaxadapt.psychophysics.stats`: the rank-sum group test between
   conditions;
@@ -18,7 +18,7 @@ Each module is imported when first used.
 
 import importlib
 
-__all__ = ["design", "fit", "observer", "stats", "trials"]
+__all__ = ["design", "observer", "psychometric", "stats", "trials"]
 
 
 def __getattr__(name):

@@ -9,7 +9,7 @@ standard/test order counter-balanced, the same for the same PRNG key, and
 ``vmap``-able over keys (one sequence per simulated observer). Responses to
 those trials are scored by :func:`training_accuracy` and :func:`excluded` and
 counted per condition and level by :func:`counts`, which gives the arrays
-:func:`jaxadapt.psychophysics.fit.fit` takes.
+:func:`jaxadapt.psychophysics.psychometric.fit` takes.
 
 Levels are log10 units relative to the standard, ``log10(test / standard)``,
 and a response is 1 when the test was judged brighter.
@@ -412,7 +412,7 @@ def counts(protocol, trials, responses):
     -------
     (array, array)
         ``n_yes`` and ``n_total``, shape ``(..., n_conditions, n_levels)``,
-        ready for :func:`jaxadapt.psychophysics.fit.fit` with
+        ready for :func:`jaxadapt.psychophysics.psychometric.fit` with
         ``protocol.levels``.
 
     Examples

@@ -22,7 +22,7 @@ brighter" at level ``x`` (log10 test/standard) in condition ``c`` is::
     m = Delta log10 L(x, c) + w . Delta c(x, c) + bias,
 
 (:func:`probability`), so that an observer without cues, lapses or order bias
-has the cumulative Gaussian of :mod:`jaxadapt.psychophysics.fit` with
+has the cumulative Gaussian of :mod:`jaxadapt.psychophysics.psychometric` with
 ``PSE = -bias`` and ``sigma = noise``; a cue that differs between the test
 and the standard moves the PSE to the root of ``m`` (:func:`true_pse`).
 

@@ -37,7 +37,7 @@ from scipy.optimize import brentq, minimize_scalar
 from scipy.special import log_ndtr
 
 from jaxadapt.io import atomic_path, csv_writer
-from jaxadapt.psychophysics import fit as psyfit
+from jaxadapt.psychophysics import psychometric
 
 #: Columns of a trial table with one row per trial.
 TRIAL_COLUMNS = ("participant", "condition", "level", "response")
@@ -113,7 +113,7 @@ class FitTable(NamedTuple):
     """One row per group; the fields are the columns of ``fits.csv``
     (``FIT_COLUMNS``). ``ci_low, ci_high`` bound the PSE (see
     :func:`fit_groups`); ``flags`` are the integer flags of
-    :mod:`jaxadapt.psychophysics.fit`. Where the data do not determine the
+    :mod:`jaxadapt.psychophysics.psychometric`. Where the data do not determine the
     fit (:func:`undetermined`), what they leave open is NaN and
     ``converged`` false, and ``pse_low, pse_high`` (the levels the PSE lies
     between) and ``sigma_max`` (a 95% bound on sigma, for separated data)
@@ -390,7 +390,7 @@ def fit_groups(
 
     The interval is the bootstrap's percentile interval (or the Wald
     interval), except where the data do not determine the fit
-    (:data:`jaxadapt.psychophysics.fit.NO_MLE`). Under separation the data
+    (:data:`jaxadapt.psychophysics.psychometric.NO_MLE`). Under separation the data
     say only that the PSE lies between the highest level with a "no" and
     the lowest with a "yes" (for a rising function): every PSE in that
     gap fits them as well in the limit of a steep slope. The prior then
@@ -398,7 +398,7 @@ def fit_groups(
     again at the same levels: the percentile interval came out 0.04 log
     units wide in a gap of 0.15. So the interval written spans at least
     the gap. Where the data place no PSE at all
-    (:data:`~jaxadapt.psychophysics.fit.NO_PSE`: every response the same,
+    (:data:`~jaxadapt.psychophysics.psychometric.NO_PSE`: every response the same,
     one level, no slope) it is ``(-inf, inf)``.
 
     Parameters
@@ -410,7 +410,7 @@ def fit_groups(
         Bootstrap resamples per group; 0 gives Wald intervals
         ``pse +- z se_pse`` from the observed information instead.
     method, confidence, guess, lapse, progress
-        As for :func:`jaxadapt.psychophysics.fit.bootstrap` (``progress``
+        As for :func:`jaxadapt.psychophysics.psychometric.bootstrap` (``progress``
         is called with the number of groups done).
     keep_undetermined : bool, optional
         Keep the estimates of groups whose data do not determine the fit
@@ -425,9 +425,9 @@ def fit_groups(
         raise ValueError("n_resamples: expected 0 (Wald intervals) or at least 2, got 1")
     count = len(groups.participant)
     options = dict(guess=guess, lapse=lapse)
-    if n_resamples:  # in batches of its own (psyfit.bootstrap_blocks)
+    if n_resamples:  # in batches of its own (psychometric.bootstrap_blocks)
         arrays = (jnp.asarray(a) for a in (groups.levels, groups.n_yes, groups.n_total))
-        boot = psyfit.bootstrap(
+        boot = psychometric.bootstrap(
             key,
             *arrays,
             n_resamples=n_resamples,
@@ -440,7 +440,7 @@ def fit_groups(
     else:
         rows = np.concatenate([np.arange(count), np.zeros(batch_size(count) - count, int)])
         arrays = (jnp.asarray(a[rows]) for a in (groups.levels, groups.n_yes, groups.n_total))
-        fits = psyfit.fit(*arrays, **options)
+        fits = psychometric.fit(*arrays, **options)
         half = ndtri((1 + confidence) / 2) * fits.se_pse
         low, high = fits.pse - half, fits.pse + half
         if progress is not None:
@@ -449,17 +449,17 @@ def fit_groups(
     low, high = _at_least_the_data(groups, fits.flags, low, high)
     open_ = undetermined(fits.flags)
     gap_low, gap_high = separating_gap(groups)
-    unplaced = (fits.flags & psyfit.NO_PSE) > 0
-    single = (fits.flags & psyfit.SINGLE_LEVEL) > 0
+    unplaced = (fits.flags & psychometric.NO_PSE) > 0
+    single = (fits.flags & psychometric.SINGLE_LEVEL) > 0
     pse_low = np.where(open_, np.where(single, -np.inf, gap_low), np.nan)
     pse_high = np.where(open_, np.where(single, np.inf, gap_high), np.nan)
-    separated = ((fits.flags & psyfit.SEPARATION) > 0) & ~unplaced
+    separated = ((fits.flags & psychometric.SEPARATION) > 0) & ~unplaced
     sigma_max = np.full(count, np.nan)
     for i in np.flatnonzero(separated):
         sigma_max[i] = sigma_bound(groups.levels[i], groups.n_yes[i], groups.n_total[i])
     values = {name: getattr(fits, name) for name in ("pse", "sigma", "b0", "b1", "se_pse")}
     if not keep_undetermined:
-        no_mle = (fits.flags & psyfit.NO_MLE) > 0
+        no_mle = (fits.flags & psychometric.NO_MLE) > 0
         for name, column in values.items():
             # a flat slope's b0 and b1 are the data's; its PSE and sigma are not
             blank = open_ if name in ("pse", "sigma", "se_pse") else no_mle
@@ -482,9 +482,9 @@ def fit_groups(
 def undetermined(flags):
     """Groups (by their fit's ``flags``) whose data do not determine the
     fit: no maximum-likelihood estimate exists (every response the same,
-    separation, one level: :data:`~jaxadapt.psychophysics.fit.NO_MLE`), or
+    separation, one level: :data:`~jaxadapt.psychophysics.psychometric.NO_MLE`), or
     the slope is zero (``FLAT``), which places no PSE."""
-    return (np.asarray(flags) & (psyfit.NO_MLE | psyfit.FLAT)) > 0
+    return (np.asarray(flags) & (psychometric.NO_MLE | psychometric.FLAT)) > 0
 
 
 #: Confidence of :func:`sigma_bound`, and the drop of the log-likelihood
@@ -551,7 +551,7 @@ def separating_gap(groups):
     change: the highest level with a "no" and the lowest with a "yes" when
     every "no" lies at or below every "yes", the reverse for a falling
     function; where neither holds, ``(-inf, inf)``. Under separation
-    (:data:`jaxadapt.psychophysics.fit.SEPARATION`) the PSE lies in it."""
+    (:data:`jaxadapt.psychophysics.psychometric.SEPARATION`) the PSE lies in it."""
     x, k, n = groups.levels, groups.n_yes, groups.n_total
     yes, no = (n > 0) & (k > 0), (n > 0) & (k < n)
     top = [np.max(np.where(m, x, -np.inf), axis=1) for m in (no, yes)]
@@ -568,15 +568,15 @@ def _at_least_the_data(groups, flags, low, high):
     no PSE (:func:`fit_groups`)."""
     low, high = np.asarray(low), np.asarray(high)
     gap_low, gap_high = (g.astype(low.dtype) for g in separating_gap(groups))
-    separated = (flags & psyfit.SEPARATION) > 0
-    unplaced = (flags & psyfit.NO_PSE) > 0
+    separated = (flags & psychometric.SEPARATION) > 0
+    unplaced = (flags & psychometric.NO_PSE) > 0
     low = np.where(separated, np.minimum(low, gap_low), low)
     high = np.where(separated, np.maximum(high, gap_high), high)
     return np.where(unplaced, -np.inf, low), np.where(unplaced, np.inf, high)
 
 
 #: How ``write_fits`` formats the flags, a column of integers.
-_FORMATS = {"flags": lambda value: "|".join(psyfit.flag_names(value))}
+_FORMATS = {"flags": lambda value: "|".join(psychometric.flag_names(value))}
 
 
 def csv_cell(value):

@@ -18,7 +18,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.stats import norm
 
-from jaxadapt.psychophysics import fit as F  # noqa: N812
+from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 #: The afterimage experiment's tests, log10 relative to the 27 cd/m2 standard.
 X = np.log10(np.array([14.0, 19, 27, 35, 49]) / 27)
@@ -311,7 +311,7 @@ def test_the_bootstrap_in_batches_gives_the_one_call_result():
 BOOTSTRAPS = """
 import resource, jax, numpy as np
 jax.config.update("jax_enable_x64", True)
-from jaxadapt.psychophysics import fit as F
+from jaxadapt.psychophysics import psychometric as F
 for D in (16, 1024):
     k = np.tile([2.0, 6, 10, 14, 18], (D, 1))
     b = F.bootstrap(jax.random.key(0), np.linspace(-0.3, 0.3, 5), k, 20.0,
@@ -410,7 +410,7 @@ def test_the_fit_is_a_program_the_compilation_cache_keeps(tmp_path, own_cache_en
     code = (
         "from jaxadapt import runtime\n"
         "runtime.cache_compilations()\n"
-        "from jaxadapt.psychophysics import fit as F\n"
+        "from jaxadapt.psychophysics import psychometric as F\n"
         "F.fit([-0.1, 0.0, 0.1], [[3, 15, 27]], 30).pse.block_until_ready()\n"
     )
     run = [sys.executable, "-c", code]
