@@ -29,6 +29,9 @@ from jaxadapt.cli import _signals, _staging, main
 from jaxadapt.cli._output import _message
 from jaxadapt.operators import pattanaik2000 as op
 
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 SMALL = ["--size", "48x32", "--duration", "0.3"]
 
 

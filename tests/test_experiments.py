@@ -12,6 +12,9 @@ from pathlib import Path
 
 import pytest
 
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 SHARED = ("common", "jacobs_common")  # helpers the scripts import
 SCRIPTS = sorted(p.stem for p in EXPERIMENTS.glob("*.py") if p.stem not in SHARED)

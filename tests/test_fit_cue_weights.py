@@ -23,6 +23,9 @@ from jaxadapt.psychophysics import observer as O  # noqa: N812
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 import fit_cue_weights as F  # noqa: E402, N812
 
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 AFTERIMAGE, DESATURATION, BLUR = range(3)
 TARGETS = np.array([-0.02, 0.13])  # afterimage, mesopic (the order of F.PROTOCOLS)
 SD = np.array([0.016, 0.021])

@@ -124,6 +124,7 @@ def test_sensitivity_is_the_reciprocal_of_the_chapters_threshold():
     assert float(jax.grad(lambda s: increment_sensitivity(1e4, s, DELTA, 0.9, 0.73))(1.0)) == 0.0
 
 
+@pytest.mark.slow
 def test_gradient_through_run_matches_finite_differences():
     # Thresholds from the state ``run`` reports over the stepped field, in
     # forward and reverse mode (the display output's gradient is checked in
@@ -148,6 +149,7 @@ def test_gradient_through_run_matches_finite_differences():
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_gradient_through_the_diffrax_path_matches_finite_differences():
     # Rod pigment under a goal that rises from 0.01 to 5 cd/m2 in 2 s, solved
     # by diffrax (Kvaerno5; reverse mode only). The adaptive solution moves by
@@ -203,6 +205,7 @@ def course():
     return data, fit
 
 
+@pytest.mark.slow
 def test_recovers_known_parameters_from_noiseless_data(course):
     _, f = course
     assert bool(f.converged[0]) and bool(f.solved[0]) and 0 < int(f.steps[0]) < 100
@@ -283,6 +286,7 @@ def test_flat_data_are_flagged_and_finite():
         assert np.all(np.asarray(low) == 0.0) and np.all(np.asarray(high) == np.inf)
 
 
+@pytest.mark.slow
 def test_a_parameter_run_off_its_flat_direction_leaves_the_others_identified():
     # Dark adaptation alone barely depends on t0_rod (the rods are saturated
     # while it acts). Damped in its own units, its first steps can run it to
@@ -507,6 +511,7 @@ def test_a_weakly_determined_positive_parameter_keeps_a_positive_interval():
     assert 0 < float(low) < a < float(high)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype, scales", [("float64", (1e-9, 1e9)), ("float32", (1e-4, 1e5))])
 def test_the_units_of_data_and_weights_do_not_change_the_fit(decays, dtype, scales):
     # The solver works on residuals in units of those at the start. Before,
@@ -669,6 +674,7 @@ def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
     np.testing.assert_allclose(float(f.estimate["b"]), float(f64.estimate["b"][0]), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_float64_data_of_a_float32_model_are_fitted_in_float32(decays):
     # NumPy's float64 measurements against a model that computes in float32
     # (as the operators do on float32 frames): JAX refused the fit ("Custom
@@ -744,6 +750,7 @@ def uneven():
     return data, fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
 
 
+@pytest.mark.slow
 def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
     # t0_cone from 20 frames of the 2000 operator, float32, in a queue of 4
     # lanes. At the minimum every step is rejected and the damping grows;

@@ -41,6 +41,7 @@ def _fused(frames, args):
 
 # Both dtypes, and both kinds of argument: per frame (a global background)
 # and per pixel (a local one).
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("dtype", "background"), [(jnp.float32, "global"), (jnp.float64, "gaussian")]
 )
@@ -66,6 +67,7 @@ def _brightening(T=3, H=4, W=5):
     return _frames(T, H, W).at[1:].multiply(100.0)
 
 
+@pytest.mark.slow
 def test_kernel_derivative_is_that_of_the_map():
     # With two frames of one level (as this test had) the display did not
     # depend on t0 at all: the derivative compared was rounding, 2e-15.

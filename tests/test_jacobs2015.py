@@ -219,6 +219,7 @@ def _quadrants_after_saccade(scene, params):
     return np.array([[field[r, c].mean((0, 1)) for c in cols] for r in rows])
 
 
+@pytest.mark.slow
 def test_checkerboard_leaves_a_reversed_afterimage_only_with_local_adaptation():
     # Fig. 3 b-c: after fixating the board, the uniform field shows the board
     # with its brightness relationships reversed.
@@ -340,6 +341,7 @@ def test_acuity_loss_drops_fine_detail_first():
     assert thresholds[0] == pytest.approx(1.001) and thresholds[-1] == 0.0
 
 
+@pytest.mark.slow
 def test_acuity_loss_is_eq14_band_sum():
     # Eq 14 written out: the low-pass plus each difference-of-Gaussian band
     # where rho + g X exceeds its threshold; acuity_loss selects a blur instead.
@@ -415,6 +417,7 @@ def test_each_effect_off_leaves_the_frame_unchanged_by_it():
 # -- the contract -------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_same_key_same_frames():
     frames = sequence(texture() * 0.1)
     a, _ = render(op.Params(), frames, key=jax.random.key(7))
@@ -423,6 +426,7 @@ def test_same_key_same_frames():
     assert jnp.array_equal(a, b) and not jnp.array_equal(a, c)
 
 
+@pytest.mark.slow
 def test_run_equals_a_loop_of_step():
     frames = flash_frames()
     gaze = CENTRE.copy()
@@ -471,6 +475,7 @@ def test_no_retrace_for_new_values_or_more_frames(count_calls):
     assert len(traces) == m
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_1e8_and_black_are_finite(dtype):
     frames = (

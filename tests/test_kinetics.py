@@ -16,6 +16,7 @@ ROD = (400.0, 16.0)  # tau (s), c (cd/m2 s): Pattanaik 2000, Eq 7
 CONE = (110.0, 2.2e8)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("G", [0.0, 1e-4, 1.0, 1e3, 1e5, 1e8])
 @pytest.mark.parametrize("receptor", [ROD, CONE])
 def test_bleaching_exact_step_matches_diffrax(G, receptor):
@@ -139,6 +140,7 @@ def test_a_rate_per_step_broadcasts_over_a_map_of_targets():
         k.relaxation_sequence(0.5, k.Relaxation(rate, target), 0.1)
 
 
+@pytest.mark.slow
 def test_integrate_meets_its_default_tolerances_in_float32():
     # The float64 defaults (1e-8, 1e-10) cannot be met in float32: the
     # solver ran out of steps. Float32 times get tolerances it can meet.
@@ -231,6 +233,7 @@ def test_several_sequences_at_once_equal_each_on_its_own(size):
         np.testing.assert_allclose(dy, like(dy_apart, dy), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_relaxation_sequence_derivatives_equal_those_of_a_loop_of_steps():
     """The scan's own derivative rule (forward and reverse mode) against
     JAX's derivative of a loop of exact steps, with respect to the start,

@@ -42,6 +42,7 @@ def test_the_tone_curves_are_named_once():
         OPERATORS["pattanaik"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["pattanaik2000", "jacobs2015", "photographic"])
 def test_each_operator_runs_a_sequence_as_the_pipeline_does(name):
     # init, run over the frames, diagnostics as columns of one value per

@@ -84,6 +84,7 @@ def test_run_equals_a_loop_of_step(goal):
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_blinks_and_gaze_outside_the_frame_read_the_centre_and_the_edge():
     # A NaN sample (a blink) reads the frame's centre and a point outside
     # the frame its edge, in run as in step: finite output, never NaN.
@@ -146,6 +147,7 @@ def test_title_step_whites_out_then_recovers():
     assert jnp.all((diag.state.B_rod >= 0) & (diag.state.B_rod <= 1))
 
 
+@pytest.mark.slow
 def test_vmap_over_a_batch_of_params_equals_separate_runs():
     frames = _sequence()
     t0s = jnp.array([0.05, 0.08, 0.2])
@@ -201,6 +203,7 @@ def test_black_darkness_and_1e8_are_finite(dtype):
         assert jnp.all(jnp.isfinite(leaf))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("background", ["gaussian", "box", "bilateral", "arithmetic"])
 def test_a_local_background_after_total_darkness_is_finite_and_whites_out(background):
     # Two black frames, then a ramp from 1e-2 to 1e4 cd/m2. A blur of black
@@ -239,6 +242,7 @@ def test_tone_map_refuses_what_is_not_floating_point_rgb():
     assert float(jnp.min(op.tone_map(P, obs, pixel))) > 0
 
 
+@pytest.mark.slow
 def test_tone_map_is_the_colour_ratio_power_and_differentiable_at_black():
     # tone_map evaluates (rgb / L_cone)^e L_d / L_white as one exponential
     # per channel; compare with the formula as written, on pixels that are
@@ -264,6 +268,7 @@ def test_tone_map_is_the_colour_ratio_power_and_differentiable_at_black():
     assert jnp.all(jnp.isfinite(grad))
 
 
+@pytest.mark.slow
 def test_gradient_is_finite_where_pixels_fall_below_display_black():
     # A tunnel frame seen by an eye still adapted to daylight: most pixels
     # map below display black, where the display luminance is 0 and its log
@@ -300,6 +305,7 @@ def test_display_inverse_matches_bisection():
     np.testing.assert_allclose(L, 0.5 * (lo + hi), rtol=1e-7, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_gradient_through_run_matches_finite_differences():
     frames = _sequence()[:4]
 
@@ -398,6 +404,7 @@ def _half_lit(T=4, H=6, W=10, dark=5.0, bright=5000.0):
     return jnp.broadcast_to(frame, (T, H, W, 3))
 
 
+@pytest.mark.slow
 def test_local_background_on_a_uniform_scene_is_the_global_operator():
     levels = jnp.array([1e-3, 1e-3, 1e3, 1e3, 5.0, 5e4])
     frames = jnp.broadcast_to(levels[:, None, None, None], (6, 5, 7, 3))
@@ -426,6 +433,7 @@ def test_local_state_adapts_per_pixel_with_the_exact_kinetics():
     assert float(A[:, -1].mean()) > 1000 and float(A[:, 0].mean()) == pytest.approx(5.0, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_local_run_equals_a_loop_of_step():
     params = op.Params(background="bilateral", background_scale=2.0)
     frames = _sequence(W=12)

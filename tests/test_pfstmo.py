@@ -13,6 +13,9 @@ import pytest
 from jaxadapt import peers, scenes
 from jaxadapt.operators import pattanaik2000 as op
 
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 pytestmark = pytest.mark.skipif(
     not peers.pfstmo_available(),
     reason="pfstmo is not installed (apt-get install pfstmo pfstools)",

@@ -39,6 +39,7 @@ def _render(op, params, source, size):
 
 
 # (the global 2000 operator: tests/test_cli.py's tunnel in chunks)
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("op", "params", "adaptation"),
     [
@@ -57,6 +58,7 @@ def test_chunks_give_the_frames_and_diagnostics_of_one_call(op, params, adaptati
         np.testing.assert_allclose(table[name], column, rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_a_local_background_from_a_given_adaptation_compiles_run_twice(count_calls):
     # init gave a given adaptation as scalars and run carried maps: the
     # second chunk compiled run again, for three compilations of two shapes.
@@ -149,6 +151,7 @@ def _resident_bytes():
         return None
 
 
+@pytest.mark.slow
 def test_memory_stays_flat_over_a_long_sequence():
     # 1,200 frames of 128x128 (240 MB of input, as much of display frames)
     # streamed 4 at a time: what is resident after 50 chunks is what is

@@ -366,6 +366,7 @@ def test_fits_csv_numbers_read_back_exactly_whatever_numpy_printing():
     assert trials.csv_cell(np.float64(-np.inf)) == "-inf"
 
 
+@pytest.mark.slow
 def test_fit_groups_writes_fits_csv(tmp_path):
     # Simulated responses of 32 participants in the afterimage protocol: 64
     # groups, bootstrapped 200 times, the batch that test_psychophysics_psychometric.py
@@ -414,6 +415,7 @@ def test_fit_groups_writes_fits_csv(tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
+@pytest.mark.slow
 def test_tables_of_sizes_in_one_batch_size_share_one_compiled_fit(count_calls):
     # The fit was compiled for every number of groups: a first `jaxadapt
     # psychometric fit` of 14 groups took 27 s after one of 12, against
@@ -443,6 +445,7 @@ def test_tables_of_sizes_in_one_batch_size_share_one_compiled_fit(count_calls):
         np.testing.assert_allclose(table.loglik, [float(f.loglik) for f in alone], rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_fit_groups_keeps_the_intervals_in_the_fits_dtype():
     # Widened to a separating gap (float64 levels), float32 intervals became
     # float64 and fits.csv wrote them with 16 digits.

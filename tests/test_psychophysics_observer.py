@@ -163,6 +163,7 @@ def test_population_parameters_are_differentiable():
     assert float(grad.bias) > 0  # a positive constant error makes "brighter" likelier
 
 
+@pytest.mark.slow
 def test_rendered_stimuli_differ_only_in_what_each_condition_manipulates(
     afterimage_stimuli, mesopic_stimuli
 ):
@@ -254,6 +255,7 @@ def test_the_vmapped_experiment_equals_a_loop_of_observers():
         assert bool(batch.excluded[i]) == bool(accuracy < A.exclusion)
 
 
+@pytest.mark.slow
 def test_same_key_same_experiment_and_observers_do_not_depend_on_their_number():
     # 12 observers, as the round trip below, and 4, as the doctest of
     # O.simulate: the test suite compiles each experiment once.
@@ -289,6 +291,7 @@ def test_trial_tables_round_trip_through_the_reader(tmp_path):
     np.testing.assert_array_equal(groups.n_total, expected.n_total)
 
 
+@pytest.mark.slow
 def test_bad_inputs_are_named():
     # A population of negative noise drew observers of negative noise.
     for field, value in (("noise", -1.0), ("lapse", 1.0), ("noise_spread", -0.1)):

@@ -79,6 +79,7 @@ def test_matches_statsmodels_probit_glm():
     assert ours.converged.all()
 
 
+@pytest.mark.slow
 def test_float32_follows_inputs_and_matches_float64():
     levels, k, n = _random_datasets(1)
     f64 = _fit(levels, k, n)
@@ -94,6 +95,7 @@ def test_float32_follows_inputs_and_matches_float64():
         assert F.fit(x, k32, total).pse.dtype == jnp.float32
 
 
+@pytest.mark.slow
 def test_vmapped_batch_equals_a_loop_and_does_not_retrace(count_calls):
     levels, k, n = _random_datasets(2)
     batch = F.fit(levels, k, n)
@@ -148,6 +150,7 @@ def test_all_no_places_the_pse_above_the_levels_and_all_yes_below():
         assert np.all(out.flags & F.FLAT)
 
 
+@pytest.mark.slow
 def test_all_no_and_all_yes_take_their_side_in_float32_on_any_design():
     # In float32 the solver stopped at slopes of up to 0.15 (not below
     # MIN_SLOPE), whose sign put about a third of such participants on the
@@ -255,6 +258,7 @@ def test_recovery_and_observed_information_errors():
     assert out.se_pse.mean() == pytest.approx(out.pse.std(), rel=0.25)
 
 
+@pytest.mark.slow
 def test_bootstrap_intervals_cover_the_true_pse_and_are_deterministic():
     # 5 x 64 simulated datasets x 200 resamples; 95% intervals. Over 7000 such
     # datasets the percentile intervals of both methods covered the true PSE
@@ -284,6 +288,7 @@ def test_bootstrap_intervals_cover_the_true_pse_and_are_deterministic():
     np.testing.assert_array_equal(again.fit.pse, F.fit(X, k[2], n[2]).pse)
 
 
+@pytest.mark.slow
 def test_the_bootstrap_in_batches_gives_the_one_call_result():
     # 6 datasets (a 2 x 3 batch) of 50 resamples in one call, and within a
     # budget of 20 fits: one dataset a call, resamples in blocks of 20 (the
@@ -321,6 +326,7 @@ for D in (16, 1024):
 """
 
 
+@pytest.mark.slow
 def test_bootstrap_memory_does_not_grow_with_the_datasets():
     # The same batches for 1,024 datasets as for 16, so the same peak: it grew
     # by 0.2 to 26 MB; all 102,400 fits in one call took 241 MB more.
@@ -331,6 +337,7 @@ def test_bootstrap_memory_does_not_grow_with_the_datasets():
     assert large - small < 80_000, (small, large)  # KB
 
 
+@pytest.mark.slow
 def test_fitted_lapse_and_guess_rates_are_recovered():
     # Wichmann & Hill (2001): lapses bias the slope of a plain probit fit.
     mu, sigma, guess, lapse = 0.05, 0.1, 0.03, 0.06
@@ -350,6 +357,7 @@ def test_fitted_lapse_and_guess_rates_are_recovered():
     assert fixed.se_pse.mean() == pytest.approx(fixed.pse.std(), rel=0.3)
 
 
+@pytest.mark.slow
 def test_gradient_of_the_pse_matches_finite_differences():
     k, n = np.array([2.0, 9, 15, 20, 28]), np.full(5, 30.0)
 
@@ -363,6 +371,7 @@ def test_gradient_of_the_pse_matches_finite_differences():
     assert np.all(g < 0)  # more "brighter" answers: a lower PSE
 
 
+@pytest.mark.slow
 def test_fitted_lapse_rates_in_float32_reach_the_optimum_whatever_the_batch():
     # A dataset whose float32 fit, in a batch of 100, stopped 0.27
     # log-likelihood units short of its optimum and said it had converged:
@@ -387,6 +396,7 @@ def test_fitted_lapse_rates_in_float32_reach_the_optimum_whatever_the_batch():
     assert np.all(short[np.asarray(batch.converged)] < 0.01)
 
 
+@pytest.mark.slow
 def test_deviance_is_not_negative_in_float32():
     # One level among zero-trial ones: loglik and the saturated loglik agree
     # but for rounding, which made the deviance -1.9e-6 in float32.
@@ -400,6 +410,7 @@ def test_deviance_is_not_negative_in_float32():
     assert float(f.deviance) >= 0
 
 
+@pytest.mark.slow
 def test_the_fit_is_a_program_the_compilation_cache_keeps(tmp_path, own_cache_env):
     # JAX's persistent cache keeps no program with a host callback, which
     # the value checks raise through: with them inside, the fit (3-6 s to

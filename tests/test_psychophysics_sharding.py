@@ -18,6 +18,9 @@ import pytest
 
 from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 SCRIPT = textwrap.dedent(
     """
     import json

@@ -81,6 +81,7 @@ def test_exact_and_auto_match_scipy_mannwhitneyu(x, y):
         assert float(auto.p) == pytest.approx(ref.pvalue, rel=1e-9, abs=1e-300)
 
 
+@pytest.mark.slow
 @given(
     st.lists(st.floats(-1, 1, allow_subnormal=False), min_size=2, max_size=30, unique=True),
     st.data(),

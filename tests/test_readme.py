@@ -3,6 +3,11 @@
 import re
 from pathlib import Path
 
+import pytest
+
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 README = Path(__file__).resolve().parent.parent / "README.md"
 
 
