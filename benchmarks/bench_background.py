@@ -3,13 +3,13 @@
 Times, on one float32 luminance image (default 1920x1080, log-normal over
 about four decades):
 
-* ``bilateral``: :func:`jaxadapt.operators.goal.bilateral_background`,
+* ``bilateral``: :func:`jaxadapt.background.bilateral_background`,
   Durand-Dorsey weights (Gaussian ``w`` with ``s = --scale``, i.e. a disc of
   radius ``ceil(sqrt(2) s)``, and a Gaussian of 0.4 log10 units on log
   luminance), the exact windowed Eq 6.5;
 * ``bilateral_pattanaik_yee``: the same with the circular box and the
   exponential weight;
-* ``adaptive``: :func:`jaxadapt.operators.goal.adaptive_background`
+* ``adaptive``: :func:`jaxadapt.background.adaptive_background`
   (8 sizes, radii 0, 1, 3, ..., 127: 7 doublings);
 * ``box`` and ``gaussian``: the plain local averages of Eq 6.4 (``s = 8``),
   for scale;
@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from common import machine, median_seconds, write_result
 
-from jaxadapt.operators import goal
+from jaxadapt import background
 
 
 def luminance_image(width, height, seed=0):
@@ -49,13 +49,13 @@ def luminance_image(width, height, seed=0):
 
 def ours(scale):
     return {
-        "bilateral": functools.partial(goal.bilateral_background, scale=scale),
+        "bilateral": functools.partial(background.bilateral_background, scale=scale),
         "bilateral_pattanaik_yee": functools.partial(
-            goal.bilateral_background, scale=scale, kind="pattanaik-yee"
+            background.bilateral_background, scale=scale, kind="pattanaik-yee"
         ),
-        "adaptive": goal.adaptive_background,
-        "box": functools.partial(goal.box_background, scale=8.0),
-        "gaussian": functools.partial(goal.gaussian_background, scale=8.0),
+        "adaptive": background.adaptive_background,
+        "box": functools.partial(background.box_background, scale=8.0),
+        "gaussian": functools.partial(background.gaussian_background, scale=8.0),
     }
 
 

@@ -3,7 +3,7 @@
 The HDR interior of :func:`jaxadapt.scenes.interior_with_window` (a room at
 1.7-52 cd/m2 with a window onto a sunlit street at up to 2e4 cd/m2) is
 reduced to a background luminance I_b by each estimator of
-:data:`jaxadapt.operators.goal.BACKGROUNDS`. Writes
+:data:`jaxadapt.background.BACKGROUNDS`. Writes
 
 * ``backgrounds.png`` (Fig. 6.16): the scene linearly scaled, and the
   backgrounds on one log scale;
@@ -36,10 +36,11 @@ from common import setup
 from matplotlib.figure import Figure
 from scipy import ndimage
 
+from jaxadapt import background
 from jaxadapt.color import photopic_luminance
 from jaxadapt.display import encode_srgb
 from jaxadapt.io import csv_writer
-from jaxadapt.operators import classic, goal
+from jaxadapt.operators import classic
 from jaxadapt.scenes import OUTSIDE, ROOM, interior_with_window
 
 #: Width of the bands on either side of the window's edge, pixels at full size.
@@ -57,15 +58,17 @@ def estimators(scale):
     s = max(1.0, 16.0 * scale)
     levels = max(2, 8 + round(np.log2(scale)))
     return {
-        "global": goal.global_background,
-        "box": functools.partial(goal.box_background, scale=s),
-        "gaussian": functools.partial(goal.gaussian_background, scale=s),
+        "global": background.global_background,
+        "box": functools.partial(background.box_background, scale=s),
+        "gaussian": functools.partial(background.gaussian_background, scale=s),
         "bilateral (Pattanaik-Yee)": functools.partial(
-            goal.bilateral_background, scale=s / 2, kind="pattanaik-yee"
+            background.bilateral_background, scale=s / 2, kind="pattanaik-yee"
         ),
-        "bilateral (Durand-Dorsey)": functools.partial(goal.bilateral_background, scale=s / 2),
-        "adaptive": functools.partial(goal.adaptive_background, levels=levels),
-        "multiscale": functools.partial(goal.multiscale_background, levels=levels),
+        "bilateral (Durand-Dorsey)": functools.partial(
+            background.bilateral_background, scale=s / 2
+        ),
+        "adaptive": functools.partial(background.adaptive_background, levels=levels),
+        "multiscale": functools.partial(background.multiscale_background, levels=levels),
     }
 
 

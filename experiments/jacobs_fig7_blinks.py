@@ -32,6 +32,7 @@ from matplotlib.colors import rgb_to_hsv
 from matplotlib.figure import Figure
 
 from jaxadapt import scenes
+from jaxadapt.gaze import fixate
 from jaxadapt.operators import jacobs2015 as op
 
 LOG_LAMPS = (3.5, 4.5, 8.5)
@@ -68,7 +69,7 @@ def blink(image, fps, exposure=EXPOSURE, after=4.1, field_deg=FIELD_DEG):
         lit = np.asarray(t) < exposure - 1e-9
         return image[None] * lit[:, None, None, None].astype(np.float32)
 
-    gaze = scenes.fixate((width - 1) / 2.0, (height - 1) / 2.0)
+    gaze = fixate((width - 1) / 2.0, (height - 1) / 2.0)
     dt = np.full(count, 1.0 / fps)
     return scenes.Scene("blink", times, dt, render, gaze, "foveal", None, width / field_deg)
 

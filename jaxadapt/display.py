@@ -7,8 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt._checks import check_value
 from jaxadapt.physiology.response import power
-from jaxadapt.spatial import check_value
 
 
 def encode_srgb(v):

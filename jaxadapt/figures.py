@@ -15,8 +15,8 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from jaxadapt._checks import check_whole
 from jaxadapt.operators.pattanaik2000 import CURVE_LOG10_LUMINANCE
-from jaxadapt.spatial import check_whole
 
 
 def _marker(t):

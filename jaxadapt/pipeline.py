@@ -24,8 +24,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt._checks import check_value, check_whole
 from jaxadapt.io import frame_rate, hdr_size, read_hdr
-from jaxadapt.spatial import check_value, check_whole
 
 #: Pixels per degree assumed for files, whose viewing geometry is unknown:
 #: a 1920-pixel-wide frame seen across 64 degrees.
@@ -457,10 +457,10 @@ def collect(op, params, source, keep, size=None, key=None):
 def with_gaze(source, path):
     """``source`` with its gaze from a recording: a CSV of ``t, x, y`` rows.
 
-    See :func:`jaxadapt.scenes.read_gaze_csv` (samples held until the next;
+    See :func:`jaxadapt.gaze.read_gaze_csv` (samples held until the next;
     NaN samples are blinks).
     """
-    from jaxadapt.scenes import read_gaze_csv, recorded_gaze
+    from jaxadapt.gaze import read_gaze_csv, recorded_gaze
 
     gaze = recorded_gaze(*read_gaze_csv(path))
     return source._replace(gaze=lambda idx: gaze(source.times[idx]))

@@ -1,11 +1,12 @@
 """Spatial weights and filters on images ``(..., H, W)``."""
 
 import functools
-import operator
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from jaxadapt._checks import check_value, check_whole
 
 #: Full width at half maximum of the foveal weighting, degrees of visual angle.
 FOVEA_DEG = 1.0
@@ -324,46 +325,6 @@ def gaussian_blur(image, sigma, truncate=4.0):
     1.0
     """
     return separable_filter(image, gaussian_kernel(sigma, truncate))
-
-
-# -- checks ---------------------------------------------------------------------
-
-
-def check_value(name, value, ok, expected):
-    """Raise ``ValueError`` naming ``name`` unless ``ok(value)`` holds everywhere.
-
-    Values that are traced (inside ``jit`` or ``vmap``) are not checked: a
-    traced value is not known before tracing.
-
-    Parameters
-    ----------
-    name : str
-        Argument name, for the message.
-    value : number or array
-    ok : callable
-        Predicate on a NumPy array, elementwise.
-    expected : str
-        What was expected, for the message.
-    """
-    if isinstance(value, jax.core.Tracer):
-        return
-    if not np.all(ok(np.asarray(value))):
-        raise ValueError(f"{name}: expected {expected}, got {value!r}")
-
-
-def check_whole(name, value, least=0, unit=""):
-    """``value`` as an ``int``, after checking that it is a whole number
-    (anything with ``__index__``: Python, NumPy and JAX integers, not a bool
-    nor a float) of at least ``least``; ``ValueError`` naming ``name``,
-    with ``unit`` (e.g. ``"pixels"``) in the message, otherwise."""
-    try:
-        whole = not isinstance(value, bool) and operator.index(value) >= least
-    except TypeError:
-        whole = False
-    if not whole:
-        of = f" of {unit}" if unit else ""
-        raise ValueError(f"{name}: expected a whole number{of} >= {least}, got {value!r}")
-    return operator.index(value)
 
 
 def as_image(image, name="image"):

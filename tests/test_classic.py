@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from jaxadapt.operators import classic, goal
+from jaxadapt import background as bg
+from jaxadapt.operators import classic
 from jaxadapt.physiology.response import naka_rushton
 from jaxadapt.physiology.threshold import TVI_MODELS, tvi_blackwell
 
@@ -182,7 +183,7 @@ def test_local_background_compresses_an_hdr_scene():
     rgb = jnp.asarray(np.repeat(L[..., None], 3, axis=-1))
     params = classic.WardJND()
     global_out = luminance(classic.tone_map(params, rgb))
-    local_out = luminance(classic.tone_map(params, rgb, goal.bilateral_background))
+    local_out = luminance(classic.tone_map(params, rgb, bg.bilateral_background))
     assert np.mean(global_out[:, W // 2 :] > 1 - 1e-9) > 0.9  # the window burns out
     for side in (slice(None, W // 2), slice(W // 2, None)):
         assert 0.2 < local_out[:, side].mean() < 0.8  # both regions around L_da
@@ -200,8 +201,8 @@ def test_global_background_default_explicit_and_as_array_agree(name):
     rgb = jnp.asarray(hdr_frame())
     L = jnp.asarray(luminance(rgb))
     default = classic.tone_map(params, rgb)
-    np.testing.assert_allclose(classic.tone_map(params, rgb, goal.global_background), default)
-    np.testing.assert_allclose(classic.tone_map(params, rgb, goal.log_average(L)), default)
+    np.testing.assert_allclose(classic.tone_map(params, rgb, bg.global_background), default)
+    np.testing.assert_allclose(classic.tone_map(params, rgb, bg.log_average(L)), default)
 
 
 @pytest.mark.parametrize("name", CURVES)
@@ -210,7 +211,7 @@ def test_local_backgrounds_on_a_constant_image_equal_global(name):
     rgb = jnp.broadcast_to(jnp.asarray([30.0, 20.0, 10.0]), (9, 13, 3))
     L = jnp.asarray(luminance(rgb))
     for background in ("bilateral", "adaptive", "multiscale"):
-        local = classic.tone_map(params, rgb, goal.BACKGROUNDS[background](L))
+        local = classic.tone_map(params, rgb, bg.BACKGROUNDS[background](L))
         np.testing.assert_allclose(local, classic.tone_map(params, rgb), rtol=1e-9)
 
 
@@ -241,7 +242,7 @@ def test_more_frames_of_the_same_shape_do_not_retrace():
 
     def background(L):
         traces.append(L.shape)
-        return goal.global_background(L)
+        return bg.global_background(L)
 
     frames = jnp.asarray(np.stack([hdr_frame(s) for s in range(2)]))
     classic.tone_map(classic.Tumblin1999(), frames, background)
@@ -264,7 +265,7 @@ def test_step_does_not_retrace_for_new_frames(count_calls):
 def test_float32_in_float32_out(name):
     params = classic.TONE_CURVES[name]()
     rgb = jnp.asarray(hdr_frame(), dtype=jnp.float32)
-    background = goal.adaptive_background(jnp.asarray(luminance(rgb), dtype=jnp.float32))
+    background = bg.adaptive_background(jnp.asarray(luminance(rgb), dtype=jnp.float32))
     out = classic.tone_map(params, rgb, background)
     assert out.dtype == jnp.float32 and np.all(np.isfinite(np.asarray(out)))
     reference = classic.tone_map(params, rgb.astype(jnp.float64), background.astype(jnp.float64))
@@ -275,7 +276,7 @@ def test_float32_in_float32_out(name):
 def test_zero_and_negative_pixels_count_as_the_floor(name):
     # As a grey pixel at the floor: at the curve's black level, which is not
     # 0 for Tumblin's (D/k^2) or Ward's; black pixels used to give 0 beside it.
-    floor = np.full(3, goal.LUMINANCE_FLOOR)
+    floor = np.full(3, bg.LUMINANCE_FLOOR)
     rgb = jnp.asarray(hdr_frame()).at[0, 0].set(0.0).at[0, 1].set(-1.0).at[0, 2].set(floor)
     out = np.asarray(classic.tone_map(classic.TONE_CURVES[name](), rgb))
     assert np.all(np.isfinite(out))

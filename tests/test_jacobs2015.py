@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxadapt import color, display, scenes, spatial
+from jaxadapt.gaze import read_gaze_csv, recorded_gaze
 from jaxadapt.operators import jacobs2015 as op
 from jaxadapt.physiology.response import naka_rushton
 from jaxadapt.spatial import gaussian_blur
@@ -596,47 +597,47 @@ def test_step_rejects_a_frame_of_another_shape():
 def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     path = tmp_path / "gaze.csv"
     path.write_text("t,x,y\n0.0,10,20\n0.5,,\n1.0,30,40\n")
-    t, xy = scenes.read_gaze_csv(path)
+    t, xy = read_gaze_csv(path)
     np.testing.assert_allclose(t, [0.0, 0.5, 1.0])
     assert np.isnan(xy[1]).all()
-    gaze = scenes.recorded_gaze(t, xy)(np.array([0.2, 0.7, 2.0]))
+    gaze = recorded_gaze(t, xy)(np.array([0.2, 0.7, 2.0]))
     assert gaze.tolist() == [[10.0, 20.0], [10.0, 20.0], [30.0, 40.0]]  # the blink holds
-    starts_blinking = scenes.recorded_gaze(t[1:], xy[1:])(np.array([0.7, 1.2]))
+    starts_blinking = recorded_gaze(t[1:], xy[1:])(np.array([0.7, 1.2]))
     assert np.isnan(starts_blinking[0]).all() and starts_blinking[1].tolist() == [30.0, 40.0]
     with pytest.raises(FileNotFoundError, match="^gaze: .*missing.csv: no such file$"):
-        scenes.read_gaze_csv(tmp_path / "missing.csv")
+        read_gaze_csv(tmp_path / "missing.csv")
     with pytest.raises(ValueError, match="^gaze: expected a CSV file .* got the folder"):
-        scenes.read_gaze_csv(tmp_path)
+        read_gaze_csv(tmp_path)
     path.write_text("0.0,10\n")
     with pytest.raises(ValueError, match="line 1"):
-        scenes.read_gaze_csv(path)
+        read_gaze_csv(path)
     # Times that stop increasing are named by line (the times were printed,
     # cut short by numpy's "...").
     path.write_text("".join(f"{t},2,2\n" for t in range(2000)) + "1.0,1,1\n")
     with pytest.raises(
         ValueError, match="increase .* got 1.0 on line 2001 after 1999 on line 2000"
     ):
-        scenes.read_gaze_csv(path)
+        read_gaze_csv(path)
     # 1e39 pixels is finite in float64 but not in float32, where the
     # operators took it for a blink.
     for row in ("0.5,inf,3", "0.5,nan,3", "0.5,,3", "0.5,1e39,3"):  # not a blink: one coordinate
         path.write_text(f"t,x,y\n0,1,1\n{row}\n")
         with pytest.raises(ValueError, match=f"got '{row}' on line 3"):
-            scenes.read_gaze_csv(path)
+            read_gaze_csv(path)
     # A spreadsheet's "CSV UTF-8": a byte-order mark and CRLF line ends.
     path.write_bytes(b"\xef\xbb\xbft,x,y\r\n0,10,20\r\n")
-    t, xy = scenes.read_gaze_csv(path)
+    t, xy = read_gaze_csv(path)
     assert t.tolist() == [0.0] and xy.tolist() == [[10.0, 20.0]]
     # A header in any case (this one was refused as a bad row).
     path.write_text("Time,X,Y\n0,10,20\n")
-    assert scenes.read_gaze_csv(path)[0].tolist() == [0.0]
+    assert read_gaze_csv(path)[0].tolist() == [0.0]
     # The header names the columns: x,y,t was read as t,x,y, without a word.
     path.write_text("x,y,T\n10,20,0\n30,40,1\n")
-    t, xy = scenes.read_gaze_csv(path)
+    t, xy = read_gaze_csv(path)
     assert t.tolist() == [0.0, 1.0] and xy.tolist() == [[10.0, 20.0], [30.0, 40.0]]
     path.write_text("time,gaze_x,gaze_y\n0,10,20\n")
     with pytest.raises(ValueError, match="naming the columns t .* got 'time,gaze_x,gaze_y'"):
-        scenes.read_gaze_csv(path)
+        read_gaze_csv(path)
 
 
 def test_jacobs_scenes_are_registered_and_calibrated():

@@ -5,6 +5,7 @@ import pytest
 
 from jaxadapt import scenes
 from jaxadapt.color import photopic_luminance
+from jaxadapt.gaze import recorded_gaze
 
 
 @pytest.mark.parametrize("size", [(480, 320), (120, 80)])
@@ -59,9 +60,9 @@ def test_every_scene_renders_one_time_as_a_batch_of_one(name):
         (lambda: scenes.checkerboard(checks=0), "checks"),
         (lambda: scenes.mesopic(white=-1), "white"),
         (lambda: scenes.tunnel_drive(speed=float("nan")), "speed"),
-        (lambda: scenes.recorded_gaze([2.0, 0.0, 1.0], np.zeros((3, 2))), "times"),
-        (lambda: scenes.recorded_gaze([0.0, 1.0, 2.0], [1.0, 2.0, 3.0]), "times, points"),
-        (lambda: scenes.recorded_gaze([], np.zeros((0, 2))), "times, points"),
+        (lambda: recorded_gaze([2.0, 0.0, 1.0], np.zeros((3, 2))), "times"),
+        (lambda: recorded_gaze([0.0, 1.0, 2.0], [1.0, 2.0, 3.0]), "times, points"),
+        (lambda: recorded_gaze([], np.zeros((0, 2))), "times, points"),
     ],
 )
 def test_bad_scene_arguments_are_named(make, name):

@@ -28,8 +28,9 @@ from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 def add_parser(sub):
     """Declare ``jaxadapt render`` and its options on the subparsers ``sub``."""
+    from jaxadapt.background import BACKGROUNDS
     from jaxadapt.operators import OPERATORS, TONE_CURVE_NAMES
-    from jaxadapt.operators.goal import BACKGROUNDS, GOALS
+    from jaxadapt.operators.goal import GOALS
     from jaxadapt.scenes import SCENES
 
     render = sub.add_parser(
@@ -236,7 +237,7 @@ def _check_options(args):
             f"--background-scale: applies to a local --background, not {args.background}"
         )
     if args.background_scale is not None:
-        from jaxadapt.operators.goal import check_background
+        from jaxadapt.background import check_background
 
         try:
             check_background(
@@ -367,7 +368,7 @@ def _warn_numbers_out_of_order(files, console):
 def _warn_gaze_off_frame(source, shape, path, console):
     """Warn when the gaze of ``source`` (recorded in ``path``) leaves frames
     of ``shape`` (H, W): the operators take the nearest point of the frame
-    (:func:`jaxadapt.operators.goal.fixation`), and a recording in other
+    (:func:`jaxadapt.gaze.fixation`), and a recording in other
     coordinates (normalised, or a larger screen's) would be held at the
     frame's edges without a word; and when it holds no fixation at all, for
     which the frame's centre is taken."""

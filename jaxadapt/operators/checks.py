@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt.spatial import check_value
+from jaxadapt._checks import check_value
 
 
 def check_frames(frames, rank, name="frames", on_host=False):
@@ -225,7 +225,7 @@ def check_fields(params, positive=(), non_negative=()):
     """Raise ``ValueError`` naming the first field of ``params`` among
     ``positive`` that is not positive and finite, or among ``non_negative``
     that is negative or not finite (every element; traced values are not
-    checked, see :func:`jaxadapt.spatial.check_value`). For an operator's
+    checked, see :func:`jaxadapt._checks.check_value`). For an operator's
     ``Params.__check_init__``: a negative time constant or a NaN rate runs,
     and its results are wrong without a word."""
     for name in positive:

@@ -11,7 +11,7 @@ Every curve is an ``equinox.Module`` of parameters with a method
 cd/m2, shape ``(..., H, W)``) to display luminance relative to display white.
 :func:`tone_map` applies any of them to linear RGB frames ``(..., H, W, 3)``
 with a global background (the log average, by default) or any local one,
-e.g. a :data:`jaxadapt.operators.goal.BACKGROUNDS` estimator.
+e.g. a :data:`jaxadapt.background.BACKGROUNDS` estimator.
 :data:`TONE_CURVES` names them.
 
 References
@@ -28,6 +28,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt._checks import check_value, float_array
+from jaxadapt.background import (
+    LUMINANCE_FLOOR,
+    check_background,
+    estimate_background,
+    global_background,
+)
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators import TONE_CURVE_NAMES
 from jaxadapt.operators.checks import (
@@ -39,19 +46,8 @@ from jaxadapt.operators.checks import (
     plain_errors,
     raise_verdict,
 )
-from jaxadapt.operators.goal import (
-    LUMINANCE_FLOOR,
-    check_background,
-    estimate_background,
-    global_background,
-)
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.physiology.threshold import TVI_MODELS
-from jaxadapt.spatial import check_value
-
-
-def _array(x):
-    return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
 def _positive(name, value):
@@ -217,8 +213,8 @@ class Schlick1994(eqx.Module):
         cd/m2 ramp: 10 cd/m2 shown at 0.955 instead of 0.092).
     """
 
-    p: jax.Array = eqx.field(default=100.0, converter=_array)
-    k: jax.Array = eqx.field(default=0.0, converter=_array)
+    p: jax.Array = eqx.field(default=100.0, converter=float_array)
+    k: jax.Array = eqx.field(default=0.0, converter=float_array)
 
     def __check_init__(self):
         check_value("Schlick1994.p", self.p, lambda v: np.isfinite(v) & (v >= 1), "a finite p >= 1")
@@ -249,9 +245,9 @@ class Tumblin1999(eqx.Module):
         Display white, relative to the display's maximum, ``> 0``.
     """
 
-    k: jax.Array = eqx.field(default=10.0, converter=_array)
-    n: jax.Array = eqx.field(default=1.0, converter=_array)
-    D: jax.Array = eqx.field(default=1.0, converter=_array)
+    k: jax.Array = eqx.field(default=10.0, converter=float_array)
+    n: jax.Array = eqx.field(default=1.0, converter=float_array)
+    D: jax.Array = eqx.field(default=1.0, converter=float_array)
 
     def __check_init__(self):
         check_value("Tumblin1999.k", self.k, lambda v: v > 1, "k > 1")
@@ -274,8 +270,8 @@ class ReinhardDevlin(eqx.Module):
         Contrast, ``> 0``.
     """
 
-    f: jax.Array = eqx.field(default=1.0, converter=_array)
-    m: jax.Array = eqx.field(default=0.6, converter=_array)
+    f: jax.Array = eqx.field(default=1.0, converter=float_array)
+    m: jax.Array = eqx.field(default=0.6, converter=float_array)
 
     def __check_init__(self):
         _positive("ReinhardDevlin.f", self.f)
@@ -290,7 +286,7 @@ class Photographic(eqx.Module):
 
     With the global background (the log average) it is the global
     photographic operator; with
-    :func:`jaxadapt.operators.goal.adaptive_background` it is the chapter's
+    :func:`jaxadapt.background.adaptive_background` it is the chapter's
     local version with a variable-size neighbourhood. (Reinhard et al.'s own
     local operator, ``L / (1 + V_1)``, keeps the log average in the scaling
     ``L = a I / I_w`` and puts the local average only in the denominator:
@@ -302,7 +298,7 @@ class Photographic(eqx.Module):
         Key, ``> 0`` (0.18, middle grey).
     """
 
-    a: jax.Array = eqx.field(default=0.18, converter=_array)
+    a: jax.Array = eqx.field(default=0.18, converter=float_array)
 
     def __check_init__(self):
         _positive("Photographic.a", self.a)
@@ -340,8 +336,8 @@ class WardJND(eqx.Module):
         :data:`jaxadapt.physiology.threshold.TVI_MODELS`.
     """
 
-    L_da: jax.Array = eqx.field(default=50.0, converter=_array)
-    L_dmax: jax.Array = eqx.field(default=100.0, converter=_array)
+    L_da: jax.Array = eqx.field(default=50.0, converter=float_array)
+    L_dmax: jax.Array = eqx.field(default=100.0, converter=float_array)
     tvi: str = eqx.field(default="blackwell", static=True)
 
     def __check_init__(self):
@@ -413,7 +409,7 @@ def tone_map(params, frame, background=None):
     frame : array, shape (..., H, W, 3)
         Linear BT.709 RGB, cd/m2, finite; leading axes are frames or batches.
         A pixel whose luminance is below
-        :data:`~jaxadapt.operators.goal.LUMINANCE_FLOOR` (zero, negative)
+        :data:`~jaxadapt.background.LUMINANCE_FLOOR` (zero, negative)
         counts as a grey of the floor's luminance and is shown as the curve
         shows that luminance, not at 0: beside brighter pixels, near the
         curve's black level; a black frame, or a black region wider than a
@@ -423,7 +419,7 @@ def tone_map(params, frame, background=None):
         Background luminance ``I_b``, cd/m2: ``None`` for the log average
         of each image (global), an array broadcastable to ``(..., H, W)``,
         or a function from the luminance image ``(..., H, W)`` to one, e.g.
-        ``functools.partial(goal.BACKGROUNDS["bilateral"], scale=8)``,
+        ``functools.partial(background.BACKGROUNDS["bilateral"], scale=8)``,
         evaluated inside this jitted function.
 
     Returns
@@ -472,7 +468,7 @@ class Params(eqx.Module):
         The curve and its parameters.
     background : str
         Background estimator, a name of
-        :data:`jaxadapt.operators.goal.BACKGROUNDS` (static).
+        :data:`jaxadapt.background.BACKGROUNDS` (static).
     background_scale : float
         Its size in pixels, for the local estimators (static).
     """

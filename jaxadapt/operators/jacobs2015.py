@@ -97,8 +97,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt.background import LUMINANCE_FLOOR
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
+from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators.checks import (
     as_dtype,
     check_adaptation,
@@ -112,7 +114,7 @@ from jaxadapt.operators.checks import (
     is_traced,
     raise_verdict,
 )
-from jaxadapt.operators.goal import LUMINANCE_FLOOR, fixation, foveal_average, frame_centre
+from jaxadapt.operators.goal import foveal_average
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import (

@@ -36,7 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt import fused
+from jaxadapt import background, fused
+from jaxadapt._checks import check_value, float_array
 from jaxadapt.color import (
     W_PHOTOPIC,
     W_SCOTOPIC,
@@ -44,6 +45,7 @@ from jaxadapt.color import (
     photopic_luminance,
     scotopic_luminance,
 )
+from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators import goal as goals
 from jaxadapt.operators.checks import (
     as_dtype,
@@ -68,15 +70,10 @@ from jaxadapt.physiology.response import (
     sigma_cone,
     sigma_rod,
 )
-from jaxadapt.spatial import check_value
 
 #: Scene luminances (log10 cd/m2) at which the scene-to-display curve of the
 #: diagnostics is sampled: 1e-6 to 1e8 cd/m2, ten samples a decade.
 CURVE_LOG10_LUMINANCE = jnp.linspace(-6.0, 8.0, 141)
-
-
-def _array(x):
-    return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
 class Params(eqx.Module):
@@ -116,7 +113,7 @@ class Params(eqx.Module):
     background : str
         ``"global"`` (the default): one goal per frame from ``goal``, the
         paper's operator. Any other name of
-        :data:`jaxadapt.operators.goal.BACKGROUNDS` (``"gaussian"``,
+        :data:`jaxadapt.background.BACKGROUNDS` (``"gaussian"``,
         ``"bilateral"``, ``"adaptive"``, ...): a goal per pixel, the local
         background luminance, and a state per pixel advanced with the same
         exact kinetics, so that local adaptation stays time-dependent (unlike
@@ -125,20 +122,20 @@ class Params(eqx.Module):
         Size of the local background estimator, pixels (its ``scale``). Static.
     """
 
-    n: jax.Array = eqx.field(default=0.73, converter=_array)
-    t0_rod: jax.Array = eqx.field(default=0.150, converter=_array)
-    t0_cone: jax.Array = eqx.field(default=0.080, converter=_array)
-    tau_rod: jax.Array = eqx.field(default=400.0, converter=_array)
-    tau_cone: jax.Array = eqx.field(default=110.0, converter=_array)
-    c_rod: jax.Array = eqx.field(default=16.0, converter=_array)
-    c_cone: jax.Array = eqx.field(default=2.2e8, converter=_array)
-    white_factor: jax.Array = eqx.field(default=5.0, converter=_array)
-    black_ratio: jax.Array = eqx.field(default=32.0, converter=_array)
-    display_adaptation: jax.Array = eqx.field(default=25.0, converter=_array)
-    display_B_cone: jax.Array = eqx.field(default=1.0, converter=_array)
-    goal_fraction: jax.Array = eqx.field(default=0.2, converter=_array)
-    white_percentile: jax.Array = eqx.field(default=99.0, converter=_array)
-    pixels_per_degree: jax.Array = eqx.field(default=30.0, converter=_array)
+    n: jax.Array = eqx.field(default=0.73, converter=float_array)
+    t0_rod: jax.Array = eqx.field(default=0.150, converter=float_array)
+    t0_cone: jax.Array = eqx.field(default=0.080, converter=float_array)
+    tau_rod: jax.Array = eqx.field(default=400.0, converter=float_array)
+    tau_cone: jax.Array = eqx.field(default=110.0, converter=float_array)
+    c_rod: jax.Array = eqx.field(default=16.0, converter=float_array)
+    c_cone: jax.Array = eqx.field(default=2.2e8, converter=float_array)
+    white_factor: jax.Array = eqx.field(default=5.0, converter=float_array)
+    black_ratio: jax.Array = eqx.field(default=32.0, converter=float_array)
+    display_adaptation: jax.Array = eqx.field(default=25.0, converter=float_array)
+    display_B_cone: jax.Array = eqx.field(default=1.0, converter=float_array)
+    goal_fraction: jax.Array = eqx.field(default=0.2, converter=float_array)
+    white_percentile: jax.Array = eqx.field(default=99.0, converter=float_array)
+    pixels_per_degree: jax.Array = eqx.field(default=30.0, converter=float_array)
     goal: str = eqx.field(default="log_average", static=True)
     background: str = eqx.field(default="global", static=True)
     background_scale: float = eqx.field(default=8.0, static=True)
@@ -146,7 +143,7 @@ class Params(eqx.Module):
     def __check_init__(self):
         if self.goal not in goals.GOALS:
             raise ValueError(f"goal: expected one of {goals.GOALS}, got {self.goal!r}")
-        goals.check_background(self.background, self.background_scale)
+        background.check_background(self.background, self.background_scale)
         check_fields(self, positive=POSITIVE_FIELDS)
         check_value("black_ratio", self.black_ratio, lambda v: v > 1, "a number above 1")
         for name in ("display_B_cone", "goal_fraction"):
@@ -521,7 +518,7 @@ def frame_goals(params, frame, gaze):
 
     def goal(L):
         if params.background != "global":
-            return goals.estimate_background(L, params.background, params.background_scale)
+            return background.estimate_background(L, params.background, params.background_scale)
         if params.goal == "log_average":
             return goals.log_average(L)
         if params.goal == "white_fraction":
@@ -588,16 +585,16 @@ def _fixation(frames, gaze):
     foveal goal and the diagnostics are read at, one per frame.
 
     ``gaze`` clipped to the frame; the frame's centre where ``gaze`` is None
-    or a sample is not finite (NaN: a blink; :func:`~jaxadapt.operators.goal.fixation`).
+    or a sample is not finite (NaN: a blink; :func:`~jaxadapt.gaze.fixation`).
     This operator keeps no gaze in its state, so a blink cannot hold the
-    fixation before it: :func:`jaxadapt.scenes.recorded_gaze` holds it in
+    fixation before it: :func:`jaxadapt.gaze.recorded_gaze` holds it in
     a recorded path (as the 2015 operator holds it in its state).
     """
     shape = frames.shape[-3:-1]
-    centre = goals.frame_centre(shape, frames.dtype)
+    centre = frame_centre(shape, frames.dtype)
     if gaze is None:
         return jnp.broadcast_to(centre, frames.shape[:-3] + (2,))
-    return goals.fixation(gaze, centre, shape)
+    return fixation(gaze, centre, shape)
 
 
 def init(params, first_frame, *, gaze=None, key=None, adaptation=None):

@@ -84,13 +84,14 @@ from jax.scipy.special import ndtr
 # them, past the clean-up of modules at exit, where nanobind then lists
 # OpenImageIO's objects as leaked on stderr after every run.
 from jaxadapt import io, scenes
+from jaxadapt._checks import check_value, check_whole, float_array
+from jaxadapt.background import LUMINANCE_FLOOR
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators import jacobs2015
 from jaxadapt.operators.checks import plain_errors
-from jaxadapt.operators.goal import LUMINANCE_FLOOR
 from jaxadapt.psychophysics import design
 from jaxadapt.psychophysics import trials as trial_tables
-from jaxadapt.spatial import check_value, check_whole, gaussian_blur
+from jaxadapt.spatial import gaussian_blur
 
 #: The cue terms of the brightness signal, in the order of ``weights``.
 CUES = ("afterimage", "desaturation", "blur")
@@ -104,10 +105,6 @@ SHARPNESS_SIGMA = 1.0
 #: far below it (a neutral flash with a faintly coloured rim) count for
 #: little, and a neutral or uniform image has a finite cue.
 CUE_FLOOR = 0.01
-
-
-def _array(x):
-    return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
 def _zeros():
@@ -570,11 +567,11 @@ class Observer(eqx.Module):
         Brightness per unit of each cue of :data:`CUES`, log10 units.
     """
 
-    noise: jax.Array = eqx.field(default=0.15, converter=_array)
-    bias: jax.Array = eqx.field(default=0.0, converter=_array)
-    order_bias: jax.Array = eqx.field(default=0.0, converter=_array)
-    lapse: jax.Array = eqx.field(default=0.0, converter=_array)
-    weights: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
+    noise: jax.Array = eqx.field(default=0.15, converter=float_array)
+    bias: jax.Array = eqx.field(default=0.0, converter=float_array)
+    order_bias: jax.Array = eqx.field(default=0.0, converter=float_array)
+    lapse: jax.Array = eqx.field(default=0.0, converter=float_array)
+    weights: jax.Array = eqx.field(default_factory=_zeros, converter=float_array)
 
     def __check_init__(self):
         _check_cue_axis("Observer.weights", self.weights)
@@ -615,16 +612,16 @@ class Population(eqx.Module):
         luminance only).
     """
 
-    noise: jax.Array = eqx.field(default=0.15, converter=_array)
-    noise_spread: jax.Array = eqx.field(default=0.4, converter=_array)
-    bias: jax.Array = eqx.field(default=0.0, converter=_array)
-    bias_spread: jax.Array = eqx.field(default=0.02, converter=_array)
-    order_bias: jax.Array = eqx.field(default=0.0, converter=_array)
-    order_bias_spread: jax.Array = eqx.field(default=0.0, converter=_array)
-    lapse: jax.Array = eqx.field(default=0.02, converter=_array)
-    lapse_spread: jax.Array = eqx.field(default=0.5, converter=_array)
-    weights: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
-    weight_spread: jax.Array = eqx.field(default_factory=_zeros, converter=_array)
+    noise: jax.Array = eqx.field(default=0.15, converter=float_array)
+    noise_spread: jax.Array = eqx.field(default=0.4, converter=float_array)
+    bias: jax.Array = eqx.field(default=0.0, converter=float_array)
+    bias_spread: jax.Array = eqx.field(default=0.02, converter=float_array)
+    order_bias: jax.Array = eqx.field(default=0.0, converter=float_array)
+    order_bias_spread: jax.Array = eqx.field(default=0.0, converter=float_array)
+    lapse: jax.Array = eqx.field(default=0.02, converter=float_array)
+    lapse_spread: jax.Array = eqx.field(default=0.5, converter=float_array)
+    weights: jax.Array = eqx.field(default_factory=_zeros, converter=float_array)
+    weight_spread: jax.Array = eqx.field(default_factory=_zeros, converter=float_array)
 
     def __check_init__(self):
         for name in ("weights", "weight_spread"):

@@ -108,9 +108,9 @@ from jax.scipy.special import gammaln, log_ndtr, ndtr, xlogy
 from jax.sharding import AxisType, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from jaxadapt._checks import check_whole
 from jaxadapt.fitting import NEWTON_STEP
 from jaxadapt.operators.checks import plain_errors
-from jaxadapt.spatial import check_whole
 
 ALL_SAME = 1
 SEPARATION = 2
