@@ -69,3 +69,14 @@ def count_calls(monkeypatch):
         return calls
 
     return patch
+
+
+#: Doctests that compile whole fits: left out of the quick run
+#: (``pytest -m "not slow"``), as the slow tests are.
+SLOW_DOCTESTS = ("jaxadapt.fitting", "jaxadapt.psychophysics.psychometric")
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if isinstance(item, pytest.DoctestItem) and item.name.startswith(SLOW_DOCTESTS):
+            item.add_marker(pytest.mark.slow)

@@ -114,6 +114,7 @@ def test_windows_follow_the_chapter():
 # -- the estimators ---------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(bg.BACKGROUNDS))
 def test_constant_image_gives_its_luminance(name):
     """Every estimator reduces to the global mean on a constant image, also with

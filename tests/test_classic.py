@@ -205,6 +205,7 @@ def test_global_background_default_explicit_and_as_array_agree(name):
     np.testing.assert_allclose(classic.tone_map(params, rgb, bg.log_average(L)), default)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CURVES)
 def test_local_backgrounds_on_a_constant_image_equal_global(name):
     params = classic.TONE_CURVES[name]()

@@ -170,6 +170,7 @@ def test_gradient_through_the_diffrax_path_matches_finite_differences():
     _check_gradient(model, jnp.log(jnp.array([40.0, 16.0])), 1e-3, forward=False, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_reverse_mode_only_model_fitted_forward_is_pointed_to_bwd():
     # JAX's "Differentiation rule for 'custom_lin' not implemented", alone.
     class Rates(eqx.Module):
@@ -217,6 +218,7 @@ def test_recovers_known_parameters_from_noiseless_data(course):
     assert float(f.params.c_rod[0]) == 16.0  # a field held fixed
 
 
+@pytest.mark.slow
 def test_noisy_recovery_lies_within_its_standard_errors(course):
     data, f = course
     rows = slice(1, 3)
@@ -462,6 +464,7 @@ def test_least_squares_matches_scipy_curve_fit(decays):
         np.testing.assert_allclose(bwd.se[name], fwd.se[name], rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_intervals_follow_each_fields_bounds(decays):
     """``Fit.interval``: ``u +- z se_u`` mapped back through the bounds, by
     the formulas of each map written out here."""
@@ -579,6 +582,7 @@ def test_the_units_of_an_unbounded_parameter_do_not_change_the_fit():
     np.testing.assert_allclose(float(mega.se["b"]), float(unit.se["b"]) * 1e-6, rtol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 def test_strongly_correlated_parameters_keep_their_standard_errors(dtype):
     # A line over x from 500 to 510: intercept and slope correlated at
@@ -774,6 +778,7 @@ def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
     assert np.max(np.asarray(fits.steps)) <= 12
 
 
+@pytest.mark.slow
 def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch, count_calls):
     # Two lanes for six datasets: each lane takes the next dataset when its
     # fit stops, and the host hands the queue over two datasets at a time,
@@ -918,6 +923,7 @@ def test_maximum_likelihood_matches_statsmodels_probit():
         assert float(ours.loss[i]) == pytest.approx(log_binomial - ref.llf, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_float32_follows_the_data_and_another_batch_does_not_retrace(
     decays, monkeypatch, count_calls
 ):

@@ -87,6 +87,7 @@ def test_kernel_derivative_is_that_of_the_map():
     )
 
 
+@pytest.mark.slow
 def test_kernel_under_vmap_over_parameters():
     frames = _brightening()
 

@@ -127,6 +127,7 @@ def test_gaussian_blur_matches_scipy_and_keeps_constants():
         spatial.gaussian_kernel(0.0)
 
 
+@pytest.mark.slow
 def test_the_forms_of_the_separable_filter_agree():
     # The CPU runs the per-axis form, other platforms the both-axes form, and
     # kernels longer than LONG_KERNEL taps go by blocks

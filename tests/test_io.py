@@ -464,6 +464,7 @@ def test_hdr_size_refuses_the_headers_read_hdr_refuses(tmp_path, name, write, ma
             function(path)
 
 
+@pytest.mark.slow
 def test_no_module_keeps_openimageio_alive_at_exit():
     # `jaxadapt psychometric simulate` ended every run with some 140 lines of
     # "nanobind: leaked ..." about OpenImageIO on stderr: the observer's

@@ -162,6 +162,7 @@ def test_dim_flash_afterimage_starts_magenta():
     assert hue(first) >= 280 and first[0] > first[1]
 
 
+@pytest.mark.slow
 def test_bleaching_off_leaves_darkness_black():
     frames = flash_frames()
     for params in (BARE, only("local_adaptation")):
@@ -241,6 +242,7 @@ def test_coloured_patches_leave_opponent_afterimages():
     assert red[0] < 0.97 * min(red[1], red[2])  # cyan
 
 
+@pytest.mark.slow
 def test_total_darkness_is_finite_and_black():
     # I = 0 everywhere for a minute: C reaches C_max = c1 / c2 (to the last
     # bit in float64) and Eq 11 is 0/0; our limit alpha = 1 keeps the output
@@ -375,6 +377,7 @@ def test_acuity_noise_is_standard_normal_and_smooth():
     assert neighbours > 0.9  # patches, not per-pixel noise
 
 
+@pytest.mark.slow
 def test_acuity_in_the_operator_flickers_in_the_dark_only():
     dark = sequence(texture() * 1e-1)
     a, _ = render(only("acuity"), dark, key=jax.random.key(1))
@@ -445,6 +448,7 @@ def test_run_equals_a_loop_of_step():
     np.testing.assert_allclose(diag.gaze[-1], [W - 1, 0.0])  # clipped to the frame
 
 
+@pytest.mark.slow
 def test_vmap_over_a_batch_of_params_equals_separate_runs():
     frames = flash_frames()
     j1 = jnp.array([0.0, 0.03, 0.1])
@@ -461,6 +465,7 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
         render(eqx.tree_at(lambda p: p.b1, SMOOTH, batch.b1[:2]), frames)
 
 
+@pytest.mark.slow
 def test_no_retrace_for_new_values_or_more_frames(count_calls):
     traces = count_calls(op, "tone_map")
     frames = jnp.ones((4, 9, 11, 3))  # a shape no other test uses
@@ -652,6 +657,7 @@ def test_jacobs_scenes_are_registered_and_calibrated():
     assert frames.max() == 1e7 and np.sum(flash.dt * lit) == pytest.approx(0.125, rel=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("length", [0.125, 0.001])
 def test_a_flash_lasts_its_length_at_any_frame_rate(length):
     # At 30 fps a 1/8 s flash from 0.25 s lit 4 whole frames (0.133 s): the
@@ -717,6 +723,7 @@ def test_blurred_maps_keep_their_ranges_where_the_equilibrium_changes():
     assert float(C_next[12, 12, 0]) < C_max  # the blur still moves the square's departure
 
 
+@pytest.mark.slow
 def test_a_steady_scene_seen_steadily_leaves_no_afterimage():
     # Started at equilibrium, with the scene and the gaze still, Eqs 4-12
     # change nothing. Blurring the whole maps (not their departures from

@@ -78,6 +78,7 @@ def test_literal_eq7_update_fails_where_the_exact_step_does_not(G):
     assert exact[-1] == pytest.approx(float(bleach_rod(G)), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_exact_steps_converge_to_the_continuous_solution():
     # A goal ramping from 1 to 1e4 cd/m2 over 2 s: holding it constant over
     # frames of dt converges to the diffrax solution with a linear input, at
@@ -198,6 +199,7 @@ def test_both_forms_of_the_prefix_states_agree():
     assert k.relaxation_sequence(jnp.float32(0.5), law, np.full(3, 0.1)).dtype == jnp.float64
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [(), (3, 2), (40, 40)])
 def test_several_sequences_at_once_equal_each_on_its_own(size):
     """relaxation_sequences gives each state's relaxation_sequence, and the

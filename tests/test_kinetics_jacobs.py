@@ -15,6 +15,7 @@ B2 = jnp.array([6.9e-1, 1.4, 5.5])
 TS = jnp.array([0.0, 0.01, 0.125, 0.5, 1.0, 3.0, 8.0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("I", [0.0, 1e3, 1e5, 1e7])
 def test_cone_bleaching_exact_step_matches_diffrax(I):
     B0 = jnp.array([0.2, 0.5, 0.9])
@@ -47,6 +48,7 @@ def test_cone_bleaching_stays_in_unit_interval_up_to_1e9(B, I, dt, cone):
         assert 0.0 <= B1_ <= 1.0
 
 
+@pytest.mark.slow
 def test_cone_bleaching_with_a_flash_path_matches_stepping():
     # A 1/8 s, 1e7 cd/m2 white flash (Fig. 4 of the paper) as a continuous
     # input: diffrax through the piecewise-linear path against exact steps at
@@ -78,6 +80,7 @@ def test_calcium_reaches_c_max_in_darkness():
     assert float(k.calcium_step(0.0, 0.0, c1, c2, 100.0)) == pytest.approx(c1 / c2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("A0", "A_T"), [(0.0, 3.0), (3.0, 0.0), (1.0, 1.2), (2.0, 2.0)])
 def test_log_adaptation_exact_step_matches_diffrax(A0, A_T):
     a1, a2 = 0.75, 0.2  # Appendix A
@@ -100,6 +103,7 @@ def test_log_adaptation_rates_are_asymmetric_and_do_not_overshoot():
     assert float(k.log_adaptation_step(1.0, 0.0, 0.75, 0.2, 100.0)) == 0.0
 
 
+@pytest.mark.slow
 def test_log_adaptation_steps_converge_to_a_moving_target():
     # A target ramping from 0 to 4 log units over 4 s (at first faster than
     # a1 = 0.75 allows, then held): exact steps with the target held over

@@ -27,6 +27,7 @@ def display_state(params):
     return op.State(A, A, bleach_rod(A), params.display_B_cone)
 
 
+@pytest.mark.slow
 def test_rule_1_is_an_identity_for_luminance():
     # A scene viewer in exactly the display observer's state sees the display
     # frame as the scene: neutral pixels keep their luminance (display value x
@@ -70,6 +71,7 @@ def test_each_rule_occurs_as_the_cone_pigment_bleaches():
         assert int(op.observer(P, op.State(A, A, bleach_rod(A), bleach_cone(A))).rule) == rule
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("goal", ["log_average", "white_fraction", "foveal"])
 def test_run_equals_a_loop_of_step(goal):
     params = op.Params(goal=goal)
@@ -131,6 +133,7 @@ def test_a_viewer_adapted_to_darkness_is_adapted_to_the_floor():
             op.init(P, None, adaptation=bad)
 
 
+@pytest.mark.slow
 def test_title_step_whites_out_then_recovers():
     scene = scenes.title_step(48, 32, duration=1.5)
     params = op.Params(goal=scene.goal)
@@ -170,6 +173,7 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
                 call(op.Params(t0_cone=field))
 
 
+@pytest.mark.slow
 def test_no_retrace_for_new_values_or_more_steps(count_calls):
     traces = count_calls(op, "tone_map")
     frames = _sequence(H=11, W=13)  # a shape no other test uses
@@ -285,6 +289,7 @@ def test_gradient_is_finite_where_pixels_fall_below_display_black():
     assert jnp.all(jnp.isfinite(tangent))
 
 
+@pytest.mark.slow
 def test_float32_matches_float64():
     frames = _sequence()
     out64, _ = op.run(P, frames, 0.03)
@@ -417,6 +422,7 @@ def test_local_background_on_a_uniform_scene_is_the_global_operator():
         np.testing.assert_allclose(diag_local.state.A_cone, diag_global.state.A_cone, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_local_state_adapts_per_pixel_with_the_exact_kinetics():
     # Adapted to 5 cd/m2 everywhere, then half the field jumps to 5000: the
     # bright half's cone adaptation follows the neural filter towards its

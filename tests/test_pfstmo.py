@@ -13,13 +13,14 @@ import pytest
 from jaxadapt import peers, scenes
 from jaxadapt.operators import pattanaik2000 as op
 
-#: End-to-end or long: left out of the quick run (pytest -m "not slow").
-pytestmark = pytest.mark.slow
-
-pytestmark = pytest.mark.skipif(
-    not peers.pfstmo_available(),
-    reason="pfstmo is not installed (apt-get install pfstmo pfstools)",
-)
+#: Runs pfstmo's programs: left out of the quick run (pytest -m "not slow").
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        not peers.pfstmo_available(),
+        reason="pfstmo is not installed (apt-get install pfstmo pfstools)",
+    ),
+]
 
 P = op.Params()
 #: Scene luminances around an adaptation level A: A times these, cd/m2.

@@ -60,6 +60,7 @@ def pooled_fit(protocol, experiment):
     return padded_fit(protocol.levels, n_yes.sum(0), n_total.sum(0))
 
 
+@pytest.mark.slow
 def test_an_observer_without_cues_is_recovered_by_the_fit():
     # 400 copies of one observer: pooled, 60,000 trials per condition of
     # exactly binomial data with P(x) = Phi((x + bias) / noise).
@@ -189,6 +190,7 @@ def test_rendered_stimuli_differ_only_in_what_each_condition_manipulates(
     assert np.all(d[1, :, AFTERIMAGE] == 0)
 
 
+@pytest.mark.slow
 def test_a_cue_weight_moves_the_pse_the_way_its_sign_says(afterimage_stimuli, mesopic_stimuli):
     cases = [
         (M, mesopic_stimuli, DESATURATION, -0.1, +1),  # desaturated tests look darker
@@ -240,6 +242,7 @@ def test_true_pse_has_the_implicit_gradient_and_weights_for_pse_inverts_it(mesop
         O.weights_for_pse(s, jnp.array([1.0, 0.0, 0.0]), 0.13)  # no afterimage here
 
 
+@pytest.mark.slow
 def test_the_vmapped_experiment_equals_a_loop_of_observers():
     stimuli = O.plain_stimuli(A)
     observers = O.draw_observers(jax.random.key(6), O.POPULATIONS["afterimage"], 3)

@@ -60,6 +60,7 @@ def _statsmodels(levels, k, n):
     return result, cov
 
 
+@pytest.mark.slow
 def test_matches_statsmodels_probit_glm():
     levels, k, n = _random_datasets(0)
     ours = _fit(levels, k, n)

@@ -98,6 +98,7 @@ def test_exact_without_masks_matches_scipy(values, data):
     assert bool(auto.exact) == (min(len(x), len(y)) <= 8)
 
 
+@pytest.mark.slow
 def test_papers_mesopic_p_is_the_exact_p_of_complete_separation():
     # §4.2.2: p = 2.84e-6, two-sided, with all 11 manipulated PSEs above all
     # 11 control ones: 2 of the C(22, 11) equally likely arrangements are as
@@ -260,6 +261,7 @@ def test_float32_stays_float32():
         assert r.p.dtype == jnp.float32 and r.z.dtype == jnp.float32
 
 
+@pytest.mark.slow
 def test_an_empty_group_gives_nan_medians_as_a_masked_out_one():
     # nanmedian of no entries at all raised IndexError (median,
     # hodges_lehmann and so compare); a group masked out gave NaN.

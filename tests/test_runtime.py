@@ -10,6 +10,9 @@ import pytest
 
 from jaxadapt import runtime
 
+#: End-to-end or long: left out of the quick run (pytest -m "not slow").
+pytestmark = pytest.mark.slow
+
 # Calls of the operator on a batch (output 50 MB, and its temporaries):
 # prints the page faults of each call after the first.
 PROGRAM = """
@@ -19,9 +22,6 @@ if sys.argv[1] == "retain":
     assert runtime.retain_freed_memory()
 import jax, jax.numpy as jnp
 from jaxadapt.operators import pattanaik2000
-
-#: End-to-end or long: left out of the quick run (pytest -m "not slow").
-pytestmark = pytest.mark.slow
 frames = jnp.full((8, 540, 960, 3), 100.0)
 for call in range(int(sys.argv[2]) + 1):
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
