@@ -10,7 +10,8 @@ takes its signals before anything heavy is imported):
   simulated observers;
 - :mod:`~jaxadapt.fitting`: fits of any model's parameters to data;
 - :mod:`~jaxadapt.pipeline`: sources and streaming renders;
-- :mod:`~jaxadapt.scenes`, :mod:`~jaxadapt.io`, :mod:`~jaxadapt.display`,
+- :mod:`~jaxadapt.scenes`, :mod:`~jaxadapt.gaze`, :mod:`~jaxadapt.background`,
+  :mod:`~jaxadapt.io`, :mod:`~jaxadapt.display`,
   :mod:`~jaxadapt.figures`, :mod:`~jaxadapt.color`,
   :mod:`~jaxadapt.spatial`, :mod:`~jaxadapt.runtime`.
 """
@@ -18,10 +19,12 @@ takes its signals before anything heavy is imported):
 import importlib
 
 __all__ = [
+    "background",
     "color",
     "display",
     "figures",
     "fitting",
+    "gaze",
     "io",
     "operators",
     "physiology",
