@@ -1,11 +1,10 @@
 """The ``jaxadapt`` program (and ``python -m jaxadapt``), signals handled from
 its first instruction.
 
-Importing the command line takes a second or two (JAX, NumPy); a Ctrl-C in
-that time printed a 30-line traceback. :func:`run` takes the signals before
-it imports anything else, so that an interrupt at any point gives the one
-line and the shell's status, as :mod:`jaxadapt.cli` does while a command
-runs.
+Importing the command line (JAX, NumPy) takes long enough to be
+interrupted. :func:`run` takes the signals before it imports anything else,
+so that an interrupt at any point gives the one line and the shell's status
+instead of a traceback, as :mod:`jaxadapt.cli` does while a command runs.
 """
 
 import os
@@ -64,6 +63,6 @@ def run():
             signal.signal(s, signal.SIG_IGN)
         print(INTERRUPTED, file=sys.stderr, flush=True)
         # Not through Python's finalisation: an import cut short (NumPy's,
-        # JAX's) leaves its C extension half made, and finalising it crashed
-        # (status -11 for a Ctrl-C 0.3 s in).
+        # JAX's) leaves its C extension half made, and finalising it can
+        # crash the interpreter.
         os._exit(128 + (e.args[0] if e.args else signal.SIGINT))

@@ -4,10 +4,9 @@ Frames are linear ITU-R BT.709 RGB in absolute units: each channel in cd/m2,
 so that the photopic luminance ``Y`` of a pixel is in cd/m2.
 
 The constants are colour-science's values written out to full float64
-precision: importing colour-science takes about 2 s (it imports matplotlib,
-SciPy and pandas), longer than a short render's work, and every command and
-library import paid it. The tests derive each one from colour-science again
-and require equality to 1e-15.
+precision, because importing colour-science (with matplotlib, SciPy and
+pandas) takes longer than a short render's work. The tests derive each one
+from colour-science again and require equality to 1e-15.
 """
 
 import jax
@@ -77,21 +76,12 @@ def transform(x, M):
     """Apply the colour matrix ``M`` to colour vectors ``x (..., 3)``: ``x @ M.T``.
 
     ``M`` is ``(k, 3)``, giving ``(..., k)``, or a weight vector ``(3,)``,
-    giving ``(...)``. Each output is written out as a sum of three products
-    rather than a dot: XLA then fuses it with the elementwise work around
-    it, whereas a dot contracting three channels over a batch of frames
-    becomes a matrix multiply of its own on a GPU (an extra pass over the
-    frames: 78 us per 1080p frame on an H100 for the two luminances of
-    :mod:`~jaxadapt.operators.pattanaik2000`). The exception is a matrix on
-    the CPU: fused there, the sums of its ``k`` outputs make XLA evaluate
-    whatever computes ``x`` ``k`` times (the 2015 operator's afterimage
-    gain, an exponential per cone class, three times per channel: the whole
-    operator a quarter slower). So on the CPU the ``k`` outputs are
-    computed one after another (``lax.map`` over the rows of ``M``), which
-    stores ``x`` once as the loop's input. That is also 4 times faster than
-    the dot the CPU path was before, which XLA hands to YNNPACK as a matrix
-    multiply with 3 columns: 8.3 ms against 35 ms for a 1920x1080 frame,
-    51 against 70 ms after an expensive producer (float32, 2 cores).
+    giving ``(...)``. Each output is written as a sum of three products, not
+    a dot, so that on a GPU XLA fuses it with the elementwise work around it
+    instead of adding a matrix multiply's pass over the frames. On the CPU a
+    matrix's outputs are computed one after another (``lax.map`` over the
+    rows of ``M``): there the fused sums would re-evaluate whatever computes
+    ``x`` once per output, and a dot is slower too.
 
     ``x`` of integers is promoted to floats (in its own dtype the weights
     would round to 0); a last axis other than 3 is a ``ValueError``.

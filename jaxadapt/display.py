@@ -50,7 +50,7 @@ def encode_uint8(v, encoding="srgb"):
     """8-bit code values of linear display values ``v`` in [0, 1] encoded
     with ``encoding`` (a name of :data:`ENCODINGS`): :func:`to_uint8` of
     the encoding, compiled as one pass over the frames (op by op, each step
-    wrote a whole chunk of frames to memory); a numpy array."""
+    would write a whole chunk of frames to memory); a numpy array."""
     return np.asarray(_encoded_codes(jnp.asarray(v), encoding))
 
 

@@ -85,9 +85,9 @@ def shrink(frame, width=CONTACT_WIDTH):
     """A frame ``(H, W, C)`` made at most ``width`` pixels wide by the least
     whole factor ``f``: each pixel the mean of an ``f x f`` box (a last
     row or column that fills no box is dropped); the frame itself if it is
-    narrow enough. For the contact sheet, where twelve full 3840x2160 frames
-    held 300 MB until the end and made a 15,000-pixel-wide PNG. Given
-    linear display values, the means are those of the light."""
+    narrow enough. For the contact sheet, so that large frames are neither
+    held whole until the end nor tiled into a huge image. Given linear
+    display values, the means are those of the light."""
     f = min(-(-frame.shape[1] // width), frame.shape[0])  # at least one row of boxes
     if f == 1:
         return np.array(frame)
@@ -239,9 +239,9 @@ def plot_psychometric(path, groups, table, columns=4):
     """Fig. 13 of Jacobs et al. (2015): each group's data and fitted curve.
 
     One panel per participant, for the first :data:`MAX_PANELS` in the
-    table's order; the title says how many there are. (170 participants
-    made a figure 11,200 pixels high that took a minute to lay out; the
-    fits of all are in the table.)
+    table's order; the title says how many there are. (A panel for each of
+    many participants makes a figure too tall to lay out quickly; the fits
+    of all are in the table.)
 
     Parameters
     ----------

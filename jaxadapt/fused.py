@@ -5,16 +5,14 @@ pixel's luminance once and then uses it for each of the pixel's three
 channels. XLA's GPU backend computes one output element per thread, so it
 either repeats the chain for each channel or (what it chooses) splits the
 map in two kernels, writing the chain's results to memory and reading them
-and the frames back: for the 2000 operator, 40 to 47 us per 1080p frame on
-an H100, where one read and one write of the frames take 21. :func:`map_pixels`
-runs such a map as a Pallas kernel in which each program loads a block of
-pixels as three channel vectors, computes the chain once per pixel and
-stores the three results: 37 us per 1080p frame (512 pixels a program, the
-fastest of 256 to 2048). On other platforms, and for frames that are not
-float32, it runs the map given for them (XLA's CPU backend fuses the
-broadcasting form well). Float64 frames stay with XLA on a GPU too:
-Triton's lowering (jaxlib 0.11.2) gave a weakly typed literal of a 64-bit
-kernel 32 bits (``jnp.log(10.0)`` in
+and the frames back. :func:`map_pixels` runs such a map as a Pallas kernel
+in which each program loads a block of pixels as three channel vectors,
+computes the chain once per pixel and stores the three results, so the
+frames are read and written once. On other platforms, and for frames that
+are not float32, it runs the map given for them (XLA's CPU backend fuses
+the broadcasting form well). Float64 frames stay with XLA on a GPU too:
+Triton's lowering can give a weakly typed literal of a 64-bit kernel 32
+bits (``jnp.log(10.0)`` in
 :func:`~jaxadapt.physiology.response.response_slope`), and a GPU's float64
 is for checking, not for speed.
 """
@@ -23,7 +21,8 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
 
-#: Pixels per program of the kernel: a power of two, as Triton requires.
+#: Pixels per program of the kernel: a power of two, as Triton requires;
+#: the fastest of the sizes tried.
 BLOCK = 512
 
 

@@ -67,8 +67,8 @@ def read_gaze_csv(path):
 
     A header line (a first line of three cells none of which is a number)
     names the columns, in any order and any case: ``t`` or ``time``, ``x``
-    and ``y`` (``x,y,t`` was read as ``t,x,y``, a header of other names is
-    refused); without one they are ``t,x,y``. A UTF-8 byte-order mark,
+    and ``y`` (a header of other names is refused); without one they are
+    ``t,x,y``. A UTF-8 byte-order mark,
     which spreadsheets write, is skipped. ``x`` and ``y`` may both be empty or ``nan``
     where the tracker lost the eye (a blink); one of them alone missing, or
     an infinite coordinate (also one beyond float32's range, in which the

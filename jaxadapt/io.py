@@ -92,9 +92,9 @@ def _read_pfm(path):
     """The pixels ``(H, W, C)`` of a PFM file whose header OpenImageIO has
     read, top row first and times the scale's magnitude, as OpenImageIO
     gives them; None for a header this does not parse (OpenImageIO then
-    reads it). OpenImageIO (3.2) reads the data in calls of a few kB: 75 ms
-    for a 1920x1080 frame, where reading its 25 MB at once takes about 10.
-    A file whose size is not its header's plus the pixels' is refused."""
+    reads it). OpenImageIO reads the data in calls of a few kB, several
+    times slower than one read of the whole. A file whose size is not its
+    header's plus the pixels' is refused."""
     with open(path, "rb") as f:
         match = _PFM_HEADER.match(f.read(128))
     if match is None:
@@ -188,8 +188,8 @@ def _hdr_image(path):
         raise FileNotFoundError(f"{path}: no such file")
     # PFM stores its rows bottom to top. OpenImageIO turns them the right way
     # up only when opened with a configuration (``pnm:pfmflip``, default 1);
-    # opened without one (as OpenImageIO 3.2 does) it returns them upside
-    # down, while its writer stores them as the format says.
+    # opened without one it can return them upside down, while its writer
+    # stores them as the format says.
     config = oiio.ImageSpec()
     config.attribute("pnm:pfmflip", 1)
     image = oiio.ImageInput.open(str(path), config)
@@ -263,14 +263,12 @@ def bt709_matrix(chromaticities, path):
     and blue primaries and of the white (an EXR's ``chromaticities``
     attribute, a Radiance ``PRIMARIES=`` line), or None (BT.709). Within
     1e-4 of BT.709's (D65 white) they are BT.709's. The matrix is the file's
-    RGB to XYZ (from the primaries and white, normalised so that the white
-    has Y = 1: SMPTE RP 177), a Bradford chromatic adaptation from the
-    file's white to D65 where they differ, then XYZ to BT.709, computed by
-    colour-science. A D65 white keeps every pixel's XYZ, its luminance Y
-    included; another keeps the Y of greys, which stay grey, and changes
-    that of colours slightly (1.6 % at most on the ColorChecker, ACES
-    AP0's D60 to D65). Bradford, as OpenColorIO's ACES configuration (and
-    OpenImageIO's ``colorconvert``) converts ACES2065-1 to BT.709.
+    RGB to XYZ (white normalised to Y = 1, SMPTE RP 177), a Bradford
+    chromatic adaptation from the file's white to D65 where they differ (as
+    OpenColorIO's ACES configuration converts ACES2065-1 to BT.709), then
+    XYZ to BT.709, computed by colour-science. A D65 white keeps every
+    pixel's luminance Y; another keeps that of greys and changes that of
+    colours slightly.
     """
     if chromaticities is None:
         return None
@@ -365,7 +363,7 @@ def _colour_part(image, path):
 
 def _one_line(message):
     """An OpenImageIO error message, whose lines may be several, as one line,
-    each line once (a truncated EXR's header error came three times)."""
+    each line once (OpenImageIO may repeat one)."""
     lines = (line.strip() for line in message.splitlines())
     return "; ".join(dict.fromkeys(line for line in lines if line))
 
@@ -529,9 +527,9 @@ def _write_pfm(path, pixels):
     (``PF`` for 3 channels, ``Pf`` for 1; the size; ``-1.0``, little-endian
     float32) and the rows bottom to top, as the format stores them.
 
-    OpenImageIO's PFM writer (3.2) passes each value to its output stream
-    in a call of its own: 200 ms for a 1920x1080 frame, where writing its
-    25 MB takes about 10. The file reads back through OpenImageIO
+    Written here because OpenImageIO's PFM writer passes each value to its
+    output stream in a call of its own, many times slower than writing the
+    rows at once. The file reads back through OpenImageIO
     (:func:`read_hdr`) to the same values.
     """
     C = pixels.shape[2]
@@ -587,13 +585,13 @@ def video_writer(path, fps, encoding="srgb"):
     The RGB is converted to YCbCr with the BT.709 matrix, and the stream is
     tagged with BT.709 primaries and matrix and the encoding's transfer
     function, so that a player decodes the colours that were sent. (By
-    default ffmpeg converts with BT.601's matrix and tags nothing: players
-    that assume BT.709 for HD video showed pure red at luma 81 for 63.)
+    default ffmpeg converts with BT.601's matrix and tags nothing, and
+    players that assume BT.709 for HD video then shift the colours.)
 
     ffmpeg is run here, not through ``imageio_ffmpeg.write_frames``, whose
     end does not check ffmpeg's exit status: a size that H.264 cannot
     encode (wider than 16,384 pixels) or a frame rate that ffmpeg cannot
-    parse left a 0-byte video, and the run said it had written it.
+    parse would leave an empty video reported as written.
     ffmpeg's messages go to a temporary file (not a pipe: one that filled
     would stall it) and the first of them, the cause, is raised.
 

@@ -42,8 +42,8 @@ def pfstmo_pattanaik00(frames, *options):
         tmp = Path(tmp)
         for k, frame in enumerate(frames):
             write_image(tmp / f"in_{k:05d}.exr", frame)
-        # The report goes to a file: read from a pipe only at the end, a
-        # report of over 64 KiB filled the pipe and the three waited forever.
+        # The report goes to a file: read from a pipe only at the end, a long
+        # report would fill the pipe and the three processes would deadlock.
         with open(tmp / "report.txt", "w+b") as report_file:
             read = subprocess.Popen(
                 ["pfsin", str(tmp / "in_%05d.exr"), "--frames", f"0:{len(frames) - 1}"],

@@ -166,8 +166,8 @@ def from_files(paths, fps=None, multiplier=1.0):
     ----------
     paths : str, Path or a sequence of them
         EXR, Radiance HDR, PFM or float TIFF files (:func:`jaxadapt.io.read_hdr`):
-        one (a still image; a string was taken as a sequence of one-letter
-        paths) or the frames of a sequence.
+        one (a still image; a single ``str`` is one path) or the frames of a
+        sequence.
     fps : float, optional
         Frame rate, frames per second; by default the first file's
         (:func:`files_rate`: its header's, else :data:`FILE_FPS`).
@@ -439,8 +439,7 @@ def collect(op, params, source, keep, size=None, key=None):
 
     Returns ``({index: frame (H, W, 3)}, table)``: the kept frames and the
     whole sequence's diagnostics (:func:`chunks`, :func:`concatenate`). An
-    index that is not a frame's is refused before anything runs (it was
-    left out of the frames without a word).
+    index that is not a frame's is refused before anything runs.
     """
     T = len(source.times)
     keep = {check_whole("keep", i) for i in keep}

@@ -4,25 +4,18 @@ JAX's CPU backend gives every call fresh buffers for its outputs and its
 temporaries. glibc's ``malloc`` serves blocks larger than 32 MB by mapping
 new pages (``mmap``) and hands them back to the system when they are freed,
 so each call's buffers are new pages that the kernel maps and zeroes one
-4 KB page at a time on first touch. For a batch of frames this costs as
-much as the computation: one call of ``pattanaik2000.run`` on 60 frames of
-1920x1080 took 6.8 s of system time in 972,000 page faults on the 2-core
-machine of ``benchmarks/`` (``getrusage`` around the call, recorded by
-``benchmarks/bench_pattanaik2000.py`` in
-``results/pattanaik2000_cpu-2core_1920x1080.json``; see
-``benchmarks/README.md``).
+4 KB page at a time on first touch. For a batch of frames these page
+faults cost as much as the computation (``benchmarks/README.md``).
 
 :func:`retain_freed_memory` asks glibc to serve every block from its heap and
-to keep what is freed there for the next call: the same call then takes no
-page faults and 3.8 times less wall time (1.16 s against 4.40 s). The price
-is that the process keeps its peak memory until it exits, as JAX keeps GPU
-memory by default.
+to keep what is freed there for the next call, so that later calls take no
+page faults. The price is that the process keeps its peak memory until it
+exits, as JAX keeps GPU memory by default.
 The command line turns it on; a library user opts in with one call.
 
 :func:`cache_compilations` keeps XLA's compiled programs on disk, so that a
-later run of the same command reuses them: a second ``jaxadapt psychometric
-fit`` of the same table took 16 s instead of 40 s on that machine (a
-profile of the first: 20.6 s compiling 78 programs).
+later run of the same command reuses them: compiling is much of a short
+command's time, such as a ``jaxadapt psychometric fit``.
 """
 
 import ctypes
@@ -66,27 +59,20 @@ def retain_freed_memory():
 def cache_compilations(folder=None):
     """Turn on JAX's persistent compilation cache, in ``folder``.
 
-    Every compiled program, however quick to compile, is written there
-    (a profiled ``psychometric fit`` compiled 78 programs, most of them
-    small, in 20.6 s of its 44 s) and read back by later processes with the same
-    program, JAX, XLA flags and device. JAX keeps no program with a host
-    callback (``equinox.error_if``): the operators called outside ``jit``
-    check on the host (:func:`jaxadapt.operators.checks.value_check`) so
-    that theirs are kept. Call it before the first
-    JAX computation. JAX's own settings win: with
-    ``JAX_COMPILATION_CACHE_DIR`` in the environment (``""`` turns the
-    cache off) nothing is changed.
+    Every compiled program is written there, however quick to compile (a
+    command compiles many small ones), and reused by later processes with
+    the same program, JAX, XLA flags and device. JAX caches no program with
+    a host callback (``equinox.error_if``), so the operators called outside
+    ``jit`` check on the host (:func:`jaxadapt.operators.checks.value_check`).
+    Call it before the first JAX computation; with
+    ``JAX_COMPILATION_CACHE_DIR`` in the environment (``""`` turns the cache
+    off) nothing is changed.
 
-    The folder is not bounded in size (JAX bounds it only with the
-    ``filelock`` package, not a dependency): a program takes 10 kB to 1 MB
-    (74 programs, 832 kB, for a ``psychometric fit``), and a new one is
-    written only for a new frame size, operator or option. The folder may
-    be deleted at any time. JAX writes an entry in place, not atomically:
-    one cut short (the process killed as it wrote, a full disk) is not
-    used, and JAX warns of it at each run that would use it (tried by
-    truncating an entry) until the folder is deleted. As JAX's
-    documentation warns, whoever can write to the folder can make this
-    process run code: the default is the user's own cache folder.
+    The folder is unbounded but grows only with a new frame size, operator
+    or option, and may be deleted at any time, also to clear an entry cut
+    short (which JAX skips, with a warning at each run). Whoever can write
+    to it can make this process run code, so the default is the user's own
+    cache folder.
 
     Parameters
     ----------

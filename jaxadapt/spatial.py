@@ -15,14 +15,12 @@ FOVEA_DEG = 1.0
 def plane_sum(x):
     """Sum of ``x (..., H, W)`` over its last two axes, shape ``(...)``.
 
-    On the CPU, as two products with vectors of ones. XLA's CPU backend
-    (jaxlib 0.10) hands a plain sum to YNNPACK, which is slow when the
+    On the CPU, as two products with vectors of ones: XLA's CPU backend
+    hands a plain sum to YNNPACK, which is several times slower when the
     summed values are computed from slices of an array, as a luminance is
-    from the channels of an RGB frame: the log-average luminance of 1080p
-    frames took 44 ns a pixel of one core's time, against 5 ns as products
-    (jax-ml/jax#37465). On other platforms, a plain sum, which a GPU fuses
-    with the computation of its input and with sibling sums of the same
-    frames into one read.
+    from the channels of an RGB frame. On other platforms, a plain sum,
+    which a GPU fuses with the computation of its input and with sibling
+    sums of the same frames into one read.
     """
 
     def products(x):
@@ -66,8 +64,8 @@ def foveal_weights(shape, gaze, pixels_per_degree, fwhm_deg=FOVEA_DEG, dtype=flo
     # exp(-d2 / 2 sigma^2) over its largest value, from each pixel's squared
     # distance beyond the nearest one's: 0 there exactly, so that the weight
     # there is 1 however narrow the patch (sigma^2 kept from underflowing to
-    # 0). Written as the difference of the two exponents, it was inf - inf,
-    # once compiled, at 1e-6 pixels per degree.
+    # 0). Written as the difference of the two exponents, it can be inf - inf
+    # once compiled, at tiny pixels per degree.
     excess = d2 - jnp.min(d2)
     w = jnp.exp(-0.5 * excess / jnp.maximum(sigma**2, jnp.finfo(dtype).tiny))
     return (w / jnp.sum(w)).astype(dtype)
@@ -152,34 +150,24 @@ def separable_filter(image, taps):
     sum of shifted slices, which XLA fuses into one loop: on the CPU it is
     tens of times faster than a convolution op for these one-channel images.
 
-    XLA's CPU and GPU backends want the two passes written differently, and
-    ``jax.lax.platform_dependent`` picks the form. On the CPU, one axis at a
-    time, each padded with ``jnp.pad`` just before its pass: from the image
-    padded on both axes at once (one gather), XLA fuses the two passes into
-    one loop that recomputes the vertical sums for every horizontal tap,
-    ``(2r + 1)^2`` products a pixel, for kernels of up to 15 taps. That took
-    275 ms for a 15-tap blur of a 1920x1080 RGB frame, against 36 ms per
-    axis (float32, 2 cores; 141 against 44 ms at 11 taps, 91 against 41 at
-    23, where XLA splits the passes itself). On a GPU that fused loop is
-    the fast form (the per-axis one cost the 2015 operator a third of its
-    frame rate on an H100), so other platforms keep it.
+    XLA's CPU and GPU backends want the two passes written differently
+    (``jax.lax.platform_dependent`` picks): on the CPU each axis is padded
+    just before its own pass, because padding both at once lets XLA fuse
+    the passes into one slower loop of ``(2r + 1)^2`` products a pixel; on
+    a GPU that fused loop is the fast form.
 
     Kernels of more than :data:`LONG_KERNEL` taps go through matrix
-    products instead, on every platform (:func:`_filter_by_products`):
-    a sum of shifted slices costs a product a tap, and XLA compiles one
-    slice a tap (a Gaussian background of 1,000 pixels, 5,657 taps,
-    compiled for minutes).
+    products on every platform (:func:`_filter_by_products`), because XLA
+    compiles one slice a tap and wide kernels take minutes to compile.
     """
     return _separable_filter(as_image(image), tuple(float(w) for w in np.asarray(taps)))
 
 
 #: Taps above which :func:`separable_filter` filters by matrix products
-#: (:func:`_filter_by_products`): one slice a tap took 530 ms for a 1920x1080
-#: float32 plane at 257 taps (2 cores), where XLA's fusion of the slices
-#: changes. The blocks are faster on the CPU from about 100 taps (a
-#: 1920x1080 RGB frame: 84 against 143 ms at 121 taps, but 70 against 62 at
-#: 61 and 51 against 30 at 15); the GPU's form has not been timed against
-#: them, so the threshold stays where the slices fail.
+#: (:func:`_filter_by_products`), where XLA's fusion of one slice a tap
+#: stops being efficient. The products win on the CPU from somewhat fewer
+#: taps, but the GPU's form has not been compared with them, so the
+#: threshold stays where the slices fail.
 LONG_KERNEL = 225
 
 
@@ -207,18 +195,12 @@ def _filter_by_products(image, taps):
     longer than the kernel reaches (``n > 4 r``, ``2 r + 1`` taps), most of
     that matrix is zero, and the pass goes by blocks instead
     (:func:`_pass_by_blocks`): ``4 r + 1`` products a sample against ``n``,
-    whichever is fewer. (By blocks alone, a Gaussian of standard deviation
-    600 pixels on an 8x8 image took 9.7 s and 1.3 GB for a band of 7,200 x
-    4,800 taps.) Every output is the sum of its own window's terms (the
+    whichever is fewer (blocks alone would build a band far larger than a
+    short axis). Every output is the sum of its own window's terms (the
     matrix is exactly 0 outside it), so float32 rounding stays relative to
-    what the window holds. The FFT these replace spread the rounding of a
-    line's brightest value over the whole line: the dark side of a 1e8 |
-    1e-3 cd/m2 edge came out up to 2e4 times its value, negative or
-    positive, and the floored background made those pixels white or black;
-    here it is within 7e-5 of float64. The blocks are also faster than the
-    FFT for a 1920x1080 float32 plane on 2 cores: 28 against 64 ms at 241
-    taps, 50 against 73 at 561 (129 against 57 at 1,201).
-    ``precision="highest"``: full float32 products on a GPU too, whose
+    what the window holds; an FFT would spread the rounding of a line's
+    brightest value over the whole line, wrecking the dark side of an HDR
+    edge. ``precision="highest"``: full float32 products on a GPU too, whose
     default for a float32 matrix product may round its inputs (TF32).
     """
     r = (taps.shape[0] - 1) // 2
@@ -278,9 +260,8 @@ def _filter_per_axis(image, taps):
     """:func:`separable_filter` one axis at a time, each padded just before its pass (CPU).
 
     The padding is ``jnp.pad``'s, not the index gather of :func:`_reflect_pad`
-    taken one axis at a time: XLA fuses such a gather into the pass as well
-    (289 against 42 ms for a 15-tap blur of a 1920x1080 RGB frame, float32,
-    2 cores)."""
+    taken one axis at a time: XLA fuses such a gather into the pass as well,
+    which is several times slower."""
     r = (taps.shape[0] - 1) // 2
     for axis in (-2, -1):
         widths = [(0, 0)] * image.ndim

@@ -41,8 +41,8 @@ def _positive(text):
 #: The resolutions ``--pixels-per-degree`` takes: a pixel of 1000 degrees
 #: (more than the visual field) to 10,000 pixels to a degree (100 times
 #: the eye's resolution). Beyond that jacobs2015's blurs, sized in pixels,
-#: outgrow any frame: 3 frames of 64x48 took 14 s at 1e4, minutes at 1e6,
-#: and gave non-finite frames from 1e7.
+#: outgrow any frame: a render becomes very slow, then gives non-finite
+#: frames.
 PPD_RANGE = (1e-3, 1e4)
 
 
@@ -57,17 +57,17 @@ def _pixels_per_degree(text):
 
 
 #: The frame rates ``--fps`` takes, frames/s: a frame a day (27.8 h) to a
-#: frame a microsecond. Outside them the video's rate rounded to 0 (below
-#: 5e-7, after the whole render) or ffmpeg refused it, and a frame time
-#: beyond float32 (1e-300 s, 1e300 s) gave black frames or a message about
-#: ``dt`` that did not name ``--fps``.
+#: frame a microsecond. Outside them the video's rate rounds to 0 or ffmpeg
+#: refuses it (after the whole render), and a frame time beyond float32's
+#: range gives black frames or an error about ``dt`` that does not name
+#: ``--fps``.
 FPS_RANGE = (1e-5, 1e6)
 
 
-#: The lowest frame rate of ``video.mp4``, frames/s (a frame every 2.8 h).
-#: The ffmpeg of imageio-ffmpeg failed to write MP4 below about 2.6e-5
-#: ("Error submitting a packet to the muxer: Not yet implemented"), for
-#: some rates only with enough frames (2.5e-5 wrote 3 frames, not 300).
+#: The lowest frame rate of ``video.mp4``, frames/s (a frame every 2.8 h),
+#: with a margin above the rates at which the ffmpeg of imageio-ffmpeg
+#: fails to write MP4 (its muxer refuses, for some rates only once there
+#: are enough frames).
 MP4_MIN_FPS = 1e-4
 
 
@@ -115,7 +115,7 @@ class _Parser(argparse.ArgumentParser):
 def _negative_values_joined(argv):
     """``argv`` with ``--option -VALUE`` written ``--option=-VALUE`` where the
     value starts with a minus and a digit: argparse takes ``-64x36`` (not a
-    plain number) for an option and said "expected one argument" for
+    plain number) for an option and says "expected one argument" for
     ``--size -64x36``; joined, the option's own check says what is wrong."""
     joined = []
     for arg in argv:
@@ -175,7 +175,7 @@ def _default_sizes(scenes):
 
 def _version():
     """The installed package's version; said as such when run from a source
-    tree that is not installed (every command failed there)."""
+    tree that is not installed, which has no package metadata."""
     try:
         return importlib.metadata.version("jaxadapt")
     except importlib.metadata.PackageNotFoundError:

@@ -23,12 +23,11 @@ _WRITTEN = threading.Event()
 def _signals_deferred():
     """Hold back the signals of :func:`_interruptible` while the body runs:
     a signal is remembered, and raised as ``KeyboardInterrupt(signum)`` when
-    the body has completed (an error of the body goes first). Moving the
-    files of a long render into ``--out`` takes a while, and an interrupt
-    in it left some of the outputs of the new run beside the rest of the
-    old one's; one in the removal of a staging folder left the folder. Once
-    the outputs are all in place (:data:`_WRITTEN`) the run has succeeded,
-    and a signal held back is dropped."""
+    the body has completed (an error of the body goes first), so that an
+    interrupt while a render's files move into ``--out`` cannot leave the
+    new run's outputs mixed with the old one's, nor a staging folder half
+    removed. Once the outputs are all in place (:data:`_WRITTEN`) the run
+    has succeeded, and a signal held back is dropped."""
     before = len(_SIGNALLED)
     _DEFERRING.set()
     try:
@@ -47,14 +46,14 @@ def _interruptible():
     :data:`_WRITTEN`: the run has succeeded) and are remembered in
     :data:`_SIGNALLED`.
 
-    By default SIGTERM and SIGHUP end Python at once and the staging folder would stay
-    in ``--out``; raised as an interrupt, the run cleans up as a failed one.
-    Python ignores (and prints) an exception raised while it runs a
-    garbage-collector callback, as JAX's is: a render went on to the end
-    after such a SIGTERM. So :func:`_staged` also checks :data:`_SIGNALLED`
-    before it moves anything into place. Only the main thread can set
-    signal handlers; elsewhere the signals keep their own. A signal the
-    process was started ignoring (``nohup`` ignores SIGHUP) stays ignored.
+    By default SIGTERM and SIGHUP end Python at once, leaving the staging
+    folder in ``--out``; raised as an interrupt, the run cleans up as a
+    failed one. Python drops an exception raised inside a garbage-collector
+    callback (as JAX's is), so :func:`_staged` also checks
+    :data:`_SIGNALLED` before it moves anything into place. Only the main
+    thread can set signal handlers; elsewhere the signals keep their own. A
+    signal the process was started ignoring (``nohup`` ignores SIGHUP)
+    stays ignored.
     """
     if threading.current_thread() is not threading.main_thread():
         yield

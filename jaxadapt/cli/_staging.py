@@ -31,29 +31,24 @@ MANIFESTS = {RENDER_OUTPUTS: ".jaxadapt-render", FIT_OUTPUTS: ".jaxadapt-psychom
 def _staged(out, console, replaces=None, keep=()):
     """Yield a staging folder inside ``out``; move its files into ``out`` on success.
 
-    With ``replaces`` (a command's pattern of output names), the names this
-    run wrote are listed in its manifest in ``out`` (:data:`MANIFESTS`), and
-    on success the files that an earlier run listed there, that match
-    ``replaces`` and that this run did not write are removed, so that the
-    folder holds one run's outputs; nothing else is, and never a path in
-    ``keep`` (this run's inputs). An input in ``out`` with the name of an
-    output is refused before anything is done: the run would write over it.
-    On any error nothing reaches ``out`` (earlier results stay as they were)
-    and the folders made for it are removed. The staging folder is removed
-    either way. ``out`` is resolved first: through a ``..`` after a folder
-    that does not exist (``new/../out``), the folders made would be other
-    than the ones named, and a failed run left ``out`` behind.
+    On any error nothing reaches ``out`` (earlier results stay as they
+    were) and the folders made for it are removed; the staging folder is
+    removed either way. With ``replaces`` (a command's pattern of output
+    names), this run's names are listed in its manifest in ``out``
+    (:data:`MANIFESTS`), and on success the files that an earlier run
+    listed there, that match ``replaces`` and that this run did not write
+    are removed, so that the folder holds one run's outputs; never a path
+    in ``keep`` (this run's inputs). An input or a folder in ``out`` with
+    the name of an output is refused before anything is written over.
+    ``out`` is resolved first, so that ``new/../out`` makes and removes the
+    folders it names.
 
-    A folder in ``out`` with the name of an output is refused: with
-    ``replaces``, before anything is done; otherwise when it is found, as
-    the files are moved (before any is). Staging
-    folders that runs killed outright (SIGKILL) left in ``out`` are named in
-    a warning on ``console``: they may also be those of runs still going.
-    A full device is said as such, naming ``out`` (:func:`_out_of_space`).
-    Signals are deferred while the staging folder is made, while the files
-    are moved and while the folders are removed (:func:`_signals_deferred`),
-    so that a signal at any point leaves nothing behind; :data:`_WRITTEN`
-    is set once the files are all in place.
+    Staging folders left in ``out`` by killed runs, or by runs still going,
+    are named in a warning on ``console``; a full device is said as such
+    (:func:`_out_of_space`). Signals are deferred while the staging folder
+    is made, the files moved and the folders removed
+    (:func:`_signals_deferred`); :data:`_WRITTEN` is set once the files are
+    in place.
     """
     out = out.resolve()
     given = [Path(p) for p in keep]

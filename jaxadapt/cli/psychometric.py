@@ -29,44 +29,8 @@ def add_parser(sub):
         "control condition and another), psychometric.png (Fig. 13) and pse.png (Fig. 14) "
         "into --out.",
     )
-    fit.add_argument(
-        "trials",
-        type=Path,
-        metavar="TRIALS.csv",
-        help="columns participant, condition, level (log10 relative to the standard), "
-        "response (1: test brighter); or level, n_yes, n_total",
-    )
-    fit.add_argument(
-        "--out", type=_folder, default=Path("out"), help="output folder (default ./out)"
-    )
-    fit.add_argument(
-        "--resamples",
-        type=int,
-        default=1000,
-        help="bootstrap resamples per group for the PSE interval (0: Wald interval); default 1000",
-    )
-    fit.add_argument(
-        "--control",
-        default=None,
-        help="condition the others are compared with (default: control, if the table has it)",
-    )
-    fit.add_argument("--seed", type=_seed, default=None, help="seed of the bootstrap (default 0)")
-    fit.add_argument(
-        "--keep-undetermined",
-        action="store_true",
-        help="write the estimates of groups whose data do not determine the fit (all "
-        "answers the same, separation, one level, no slope), which the fit's prior sets, "
-        "and enter them in the group test (default: NaN in fits.csv, left out of the test)",
-    )
-    fit.add_argument(
-        "--ranksum",
-        choices=("auto", "exact", "asymptotic"),
-        default=None,
-        help="where the rank-sum test's p comes from: the exact null distribution, the "
-        "normal approximation, or auto (default: exact when the smaller group has at most "
-        "8 PSEs and none are tied, as SciPy's mannwhitneyu; the paper's p of its two groups "
-        "of 11 is the exact one)",
-    )
+    for flags, kwargs in _FIT_OPTIONS:
+        fit.add_argument(*flags, **kwargs)
     simulate = psy.add_parser(
         "simulate",
         help="simulate an experiment of the 2015 paper with model observers",
@@ -78,37 +42,91 @@ def add_parser(sub):
         "Writes trials.csv (readable by 'jaxadapt psychometric fit'), observers.csv and "
         "stimuli.csv into --out.",
     )
-    simulate.add_argument(
-        "--protocol",
-        required=True,
-        metavar="afterimage|mesopic",
-        help="the experiment: afterimage (§4.1) or mesopic (§4.2)",
-    )
-    simulate.add_argument(
-        "--observers", type=int, required=True, metavar="N", help="number of observers"
-    )
-    simulate.add_argument(
-        "--weight",
-        action="append",
-        default=[],
-        metavar="CUE=W",
-        help="weight of a cue (afterimage, desaturation, blur) in log10 units of "
-        "brightness per unit of cue, the same for every observer, repeatable (default: 0, "
-        "observers who judge luminance only); e.g. --weight desaturation=-0.1 makes "
-        "desaturated tests look darker",
-    )
-    simulate.add_argument(
-        "--seed", type=_seed, default=0, help="seed of the simulation (default 0)"
-    )
-    simulate.add_argument(
-        "--out", type=_folder, default=Path("out"), help="output folder (default ./out)"
-    )
+    for flags, kwargs in _SIMULATE_OPTIONS:
+        simulate.add_argument(*flags, **kwargs)
 
 
-# -- outputs ------------------------------------------------------------------
+# The options of each action as (flags, add_argument keywords), in the order
+# --help lists them.
 
+_FIT_OPTIONS = (
+    (
+        ("trials",),
+        dict(
+            type=Path,
+            metavar="TRIALS.csv",
+            help="columns participant, condition, level (log10 relative to the standard), "
+            "response (1: test brighter); or level, n_yes, n_total",
+        ),
+    ),
+    (("--out",), dict(type=_folder, default=Path("out"), help="output folder (default ./out)")),
+    (
+        ("--resamples",),
+        dict(
+            type=int,
+            default=1000,
+            help="bootstrap resamples per group for the PSE interval (0: Wald interval); "
+            "default 1000",
+        ),
+    ),
+    (
+        ("--control",),
+        dict(
+            default=None,
+            help="condition the others are compared with (default: control, if the table has it)",
+        ),
+    ),
+    (("--seed",), dict(type=_seed, default=None, help="seed of the bootstrap (default 0)")),
+    (
+        ("--keep-undetermined",),
+        dict(
+            action="store_true",
+            help="write the estimates of groups whose data do not determine the fit (all "
+            "answers the same, separation, one level, no slope), which the fit's prior sets, "
+            "and enter them in the group test (default: NaN in fits.csv, left out of the test)",
+        ),
+    ),
+    (
+        ("--ranksum",),
+        dict(
+            choices=("auto", "exact", "asymptotic"),
+            default=None,
+            help="where the rank-sum test's p comes from: the exact null distribution, the "
+            "normal approximation, or auto (default: exact when the smaller group has at most "
+            "8 PSEs and none are tied, as SciPy's mannwhitneyu; the paper's p of its two "
+            "groups of 11 is the exact one)",
+        ),
+    ),
+)
 
-# -- the render command -------------------------------------------------------
+_SIMULATE_OPTIONS = (
+    (
+        ("--protocol",),
+        dict(
+            required=True,
+            metavar="afterimage|mesopic",
+            help="the experiment: afterimage (§4.1) or mesopic (§4.2)",
+        ),
+    ),
+    (
+        ("--observers",),
+        dict(type=int, required=True, metavar="N", help="number of observers"),
+    ),
+    (
+        ("--weight",),
+        dict(
+            action="append",
+            default=[],
+            metavar="CUE=W",
+            help="weight of a cue (afterimage, desaturation, blur) in log10 units of "
+            "brightness per unit of cue, the same for every observer, repeatable (default: 0, "
+            "observers who judge luminance only); e.g. --weight desaturation=-0.1 makes "
+            "desaturated tests look darker",
+        ),
+    ),
+    (("--seed",), dict(type=_seed, default=0, help="seed of the simulation (default 0)")),
+    (("--out",), dict(type=_folder, default=Path("out"), help="output folder (default ./out)")),
+)
 
 
 def fit(args, console):
@@ -161,8 +179,8 @@ def fit(args, console):
         written.remove("group_test.csv")
     with _staged(out, console, FIT_OUTPUTS, keep=[args.trials]) as staging:
         # In float64, as statsmodels and MATLAB fit: in float32 the
-        # log-likelihood of a few thousand trials a level is off by 0.01
-        # (binomial terms that cancel), and its fits stop at slopes whose
+        # log-likelihood of thousands of trials a level loses precision to
+        # binomial terms that cancel, so the fits stop at slopes whose
         # rounding matters; the group test's normal tail 2 Phi(-|z|) is 0 in
         # float32 from z = 13.
         bar = Progress(console=console, transient=True, disable=not console.is_terminal)
@@ -202,8 +220,8 @@ def _signed(value, digits=3):
     return f"{round(value, digits) + 0.0:+.{digits}f}"
 
 
-#: Groups named one by one in the warnings of :func:`_warn_undetermined`: a
-#: table of 10,000 groups wrote thousands of lines.
+#: Groups named one by one in the warnings of :func:`_warn_undetermined`, so
+#: that a large table does not write thousands of lines.
 MAX_GROUP_WARNINGS = 10
 
 

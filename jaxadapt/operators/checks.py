@@ -24,16 +24,15 @@ def check_frames(frames, rank, name="frames", on_host=False):
     """Check frames of linear RGB in cd/m2; return their value check
     ``(guard, verdict)`` (:func:`value_check`).
 
-    The shape must be ``(T, H, W, 3)`` (rank 4) or ``(H, W, 3)`` (rank 3),
-    no axis of length 0, and the dtype floating point (``ValueError`` at once otherwise); the
-    values must be finite and non-negative. The guard is an exact zero
-    scalar of the frames' dtype: add it to the operator's scalar state,
-    which every result depends on. Raising on the frames themselves
-    (``eqx.error_if(frames, ...)``) routes them through a conditional, and XLA
-    then copies the whole sequence: on a GPU that copy cost more than the
-    operator's own pixel work. The check counts the bad pixels of each frame
-    by a floating-point sum over ``(H, W)``, the form of the operators'
-    per-frame goal reductions, so that XLA reads the frames once for both.
+    The shape must be ``(T, H, W, 3)`` (rank 4) or ``(H, W, 3)`` (rank 3)
+    with no axis of length 0, and the dtype floating point (``ValueError``
+    at once otherwise); the values must be finite and non-negative. The
+    guard is an exact zero scalar of the frames' dtype: add it to the
+    operator's scalar state, which every result depends on. (Raising on the
+    frames themselves would route them through a conditional, and XLA would
+    copy the whole sequence.) The bad pixels are counted by a sum over
+    ``(H, W)``, the form of the operators' goal reductions, so that XLA
+    reads the frames once for both.
     """
     dtype = _frames_dtype(frames, rank, name)
     return value_check(dtype, [_bad_frames(frames)], frames_messages(name), on_host)
@@ -139,8 +138,9 @@ def _computable(dtype):
     """Whether the operators compute in ``dtype``: float32 or float64.
 
     Not float16 (nor bfloat16): it holds no luminance above 65,504 cd/m2,
-    and the 2000 operator's powers and semi-saturations in it were off by
-    up to 0.97 of display white (a 5,000 cd/m2 road) with no error.
+    and the 2000 operator's powers and semi-saturations lose so much
+    precision in it that display values come out grossly wrong, with no
+    error.
     """
     return jnp.issubdtype(dtype, jnp.floating) and jnp.finfo(dtype).bits >= 32
 
@@ -187,7 +187,7 @@ def check_one_parameter_set(params, shapes=None):
     scalars, or the shape ``shapes[name]`` gives a field (``ValueError``
     naming the field). Inside ``jax.vmap`` a batch of parameter sets has
     these shapes; passed to ``run`` as it is, ``t0_cone`` of shape ``(T,)``
-    gave one time constant per frame without a word, and other shapes
+    would silently give one time constant per frame, and other shapes
     JAX's broadcasting errors, naming no field."""
     shapes = shapes or {}
     for field in dataclasses.fields(params):
@@ -202,9 +202,8 @@ def check_one_parameter_set(params, shapes=None):
 
 def check_state(state, kind, operator):
     """Refuse a ``state`` that is not an operator's ``kind`` of state (its
-    ``State``, from its ``init``): ``None`` or a tuple gave JAX's errors
-    from inside the operator ("vmap must have at least one non-None value
-    in in_axes")."""
+    ``State``, from its ``init``), which would otherwise fail with JAX's
+    errors from inside the operator."""
     if not isinstance(state, kind):
         raise ValueError(
             f"state: expected a {operator}.State (from {operator}.init), got {type(state).__name__}"

@@ -155,8 +155,8 @@ class Params(eqx.Module):
 
 #: The fields of :class:`Params` that must be positive and finite (time and
 #: bleaching constants, exponent, reference factors, display adaptation,
-#: resolution): a negative ``t0`` drove the adaptation state below zero, a
-#: NaN one made it NaN, both silently.
+#: resolution): a negative ``t0`` would drive the adaptation state below
+#: zero and a NaN one make it NaN, both silently.
 POSITIVE_FIELDS = (
     "n",
     "t0_rod",
@@ -451,7 +451,7 @@ def tone_map(params, obs, rgb):
     pixels get their neutral ratio from adding 1 to ``rgb`` and ``L_cone``
     there, not from a select on a per-pixel test broadcast over the
     channels: XLA's CPU backend evaluates the exponentials after such a
-    select unvectorised, four times slower.
+    select unvectorised, several times slower.
 
     The clip is per channel, as in the paper: a saturated colour whose
     dominant channel is at 1 can come out darker as it brightens, its

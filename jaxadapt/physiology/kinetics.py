@@ -1,6 +1,6 @@
-"""Adaptation kinetics: the ODEs of the seeds, their exact steps, and diffrax.
+"""Adaptation kinetics: the ODEs of the papers, their exact steps, and diffrax.
 
-Every linear kinetics law of the seeds has the form of a first-order
+Every linear kinetics law of the papers has the form of a first-order
 relaxation towards an input-dependent target::
 
     dy/dt = k(G) (y_inf(G) - y)
@@ -130,14 +130,11 @@ def relaxation_sequences(y0s, relaxations, dt):
     Small states (at most :data:`SMALL_STATE` elements a step, all
     together; the 2000 operator's global state is four scalars a frame) are
     stacked into one state and stepped by one sequence; larger ones each by
-    its own. XLA's CPU runtime runs independent loops at once on its
-    threads: for maps that is parallel work, for scalars it is only the
-    threads handing each step over. In ``benchmarks/bench_fitting.py``'s
-    model (90 frames, float64, 2 cores) one evaluation from SciPy took 280
-    to 330 us with four loops and 64 to 117 us with the stacked one.
-    Stacking copies the states' steps: with 60 frames of 1920x1080 maps (a
-    Gaussian background) the four loops peaked at 17.5 GB, and the stacked
-    form ran out of a 24 GB machine's memory in one run of three.
+    its own. XLA's CPU runtime runs independent loops on separate threads,
+    which is parallel work for maps but only per-step hand-over for
+    scalars, so the stacked form evaluates several times faster on small
+    states. Stacking copies every state's steps, though, so large maps are
+    stepped separately to bound memory.
 
     Parameters
     ----------
@@ -181,9 +178,8 @@ def _prefix_states(y0, a, b):
     a kernel launch. On the CPU, the steps in turn (``lax.scan``): the
     associative scan's interleaving of odd and even prefixes is a padding
     along the time axis that XLA's CPU backend does not vectorise, and it
-    reads and writes every state several times. Measured on 2 cores
-    (float32): 81 against 11 ms for a 60-frame sequence of 480x270 maps,
-    1.63 against 0.45 s at 1920x1080.
+    reads and writes every state several times, so the loop is several
+    times faster there.
     """
     return jax.lax.platform_dependent(
         y0, a, b, cpu=_prefix_states_in_turn, default=_prefix_states_associative
@@ -221,8 +217,7 @@ def _affine_sequence(y0, a, b):
     (da_k y_k + db_k)``: the same recurrence with new offsets, so the
     tangent is one more scan of the same kind, linear in the tangents.
     JAX's own derivative of the scan would also carry the tangents of every
-    product of the ``a_k``: in ``benchmarks/bench_fitting.py`` the Jacobian
-    took 1.2 times as long and the fits 1.15 times as long.
+    product of the ``a_k``, which makes Jacobians and fits slower.
     """
     return _prefix_states(y0, a, b)
 
@@ -346,8 +341,8 @@ def integrate(rhs, y0, ts, args, *, rtol=None, atol=None, max_steps=65536):
         Tolerances of the step-size controller. By default ``rtol = max(1e-8,
         1e4 eps)`` and ``atol`` 1/100 of that, for the machine epsilon ``eps``
         of ``ts``'s dtype: 1e-8 and 1e-10 in float64; 1.2e-3 and 1.2e-5 in
-        float32, where the implicit stages meet no tighter ones (the solver
-        ran out of steps at 1e-8, and at 3e-4 towards a goal of 1e5 cd/m2).
+        float32, where the implicit stages meet no tighter ones and the
+        solver runs out of steps.
 
     Returns
     -------
@@ -521,8 +516,8 @@ def log_adaptation_rhs(t, A, args):
     relaxes to the target at the rate ``a / band`` instead of stopping dead,
     so the solution differs from Eq 3 by less than ``band`` (1e-6 log units
     by default). The implicit solver of :func:`integrate` copes with the
-    stiff band; narrower bands need more steps (about 1e4 for 1e-6, 2e5 for
-    1e-9 on a 3 log-unit rise). ``A_T`` may be a :func:`goal_path`.
+    stiff band, but narrower bands need many more steps (raise
+    ``max_steps``). ``A_T`` may be a :func:`goal_path`.
     """
     A_T, a1, a2 = args[:3]
     band = args[3] if len(args) > 3 else LOG_ADAPTATION_BAND

@@ -24,8 +24,8 @@ def power(x, p):
     """``x^p`` for ``x >= 0``, as ``exp(p ln x)``, with ``0^p = 0`` (``p > 0``).
 
     The same value as ``x ** p``, written this way because XLA's general
-    ``pow`` (which handles negative bases and integer exponents) is about
-    three times slower than ``exp`` and ``log`` on the CPU, and the
+    ``pow`` (which handles negative bases and integer exponents) is several
+    times slower than ``exp`` and ``log`` on the CPU, and the
     operators evaluate it several times per pixel. Zero gives zero with a
     zero gradient (no ``0 * inf``); a negative ``x``, outside the domain,
     gives NaN as NaN does, so that neither vanishes into a response of 0.
@@ -38,8 +38,8 @@ def power(x, p):
     positive = x > 0
     safe = jnp.where(positive, x, 1.0)
     # NaN as an array of x's dtype, not a literal: Triton's lowering of a
-    # Pallas kernel (jaxlib 0.11.2) took a NaN literal of a select as an
-    # integer and failed (jaxadapt.fused runs this inside such a kernel).
+    # Pallas kernel can take a NaN literal of a select for an integer
+    # (jaxadapt.fused runs this inside such a kernel).
     outside = jnp.where(x == 0, jnp.zeros_like(safe), jnp.full_like(safe, jnp.nan))
     return jnp.where(positive, jnp.exp(p * jnp.log(safe)), outside)
 
@@ -132,14 +132,12 @@ def log_naka_rushton_sum_inverse(R, sigma_1, B_1, sigma_2, B_2, n=N_HUNT):
     (the sum is increasing in ``u``). It is taken in the cancellation-free
     form of the quadratic formula; then ``ln L = ln sigma_2 + (ln u) / n``.
 
-    The logarithm is the primary form because the display path of the
-    operator needs ``ln L`` (its output is ``exp(... + ln L)``): forming
-    ``L`` and taking its log again would cost an exponential and a log per
-    pixel. A root at or below the smallest normal float (``R = 0`` gives
-    ``u = 0``) enters as that float, ``L`` below 1e-49 cd/m2 (0 once
-    exponentiated), with a zero gradient. That floor is a select, not
-    ``log(max(u, tiny))``, whose gradient XLA's compiled code made NaN where
-    ``u = 0`` (``tests/test_pattanaik2000.py``).
+    The logarithm is the primary form because the operator's display path
+    needs ``ln L``: forming ``L`` and taking its log again would cost an
+    exponential and a log per pixel. A root at or below the smallest normal
+    float (``R = 0`` gives ``u = 0``) enters as that float (``L`` 0 once
+    exponentiated) with a zero gradient, through a select rather than
+    ``log(max(u, tiny))``, whose compiled gradient is NaN at ``u = 0``.
 
     Parameters
     ----------
@@ -271,13 +269,8 @@ def hunt_F_LS(A):
     with Hunt's factor 1/2.26 dropped as the paper does. The exponent 4 of
     ``(1 - j^2)`` and the constant 5e5 of ``j`` are the paper's (Eq 4); some
     implementations use 5e4 (pfstmo) or an exponent 0.4 (colour-science).
-    They agree only in the photopic range: pfstmo's ``F_LS`` differs by
-    7e-7 relative at 25 cd/m2, 4e-4 at 0.1, 0.6 % at 0.01, 9 % at 1e-3 and
-    by a factor 1.6 to 2.2 from 1e-6 to 1e-4 cd/m2, where this alone
-    makes its ``sigma_rod`` 0.45 to 0.63 times ours (0.2 to 0.35 log
-    units: rod vision in starlight; its printed numerator of Eq 4, see
-    :func:`sigma_rod`, takes another factor 5); colour-science's differs
-    by 1.4e-5 at 1e-3 cd/m2 and 9 % at 1e-5.
+    They agree only in the photopic range and diverge in scotopic light,
+    where pfstmo's ``sigma_rod`` comes out about half of ours.
     """
     j2 = (1.0 / (5e5 * A + 1.0)) ** 2
     return 3800.0 * j2 * (5.0 * A) + 0.2 * (1.0 - j2) ** 4 * power(5.0 * A, 1.0 / 6.0)
