@@ -43,7 +43,12 @@ def main():
         ax.set_title(f"t = {scene.times[i]:.2f} s\nG = {table['G_cone'][i]:.3g}", fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "title_strip.png", dpi=110)
-    figures.plot_adaptation(out / "adaptation.png", table, "title-page step, Pattanaik et al. 2000")
+    figures.plot_adaptation(
+        out / "adaptation.png",
+        table,
+        "title-page step, Pattanaik et al. 2000",
+        op.CURVE_LOG10_LUMINANCE,
+    )
     io.write_columns(out / "diagnostics.csv", table)
     print(f"wrote {out}/title_strip.png")
 

@@ -56,7 +56,12 @@ def main():
     )
     fig.tight_layout()
     fig.savefig(out / "tunnel_fig7.png", dpi=110)
-    figures.plot_adaptation(out / "adaptation.png", table, "tunnel drive, Pattanaik et al. 2000")
+    figures.plot_adaptation(
+        out / "adaptation.png",
+        table,
+        "tunnel drive, Pattanaik et al. 2000",
+        op.CURVE_LOG10_LUMINANCE,
+    )
     io.write_columns(out / "diagnostics.csv", table)
     print(f"wrote {out}/tunnel_fig7.png")
 

@@ -16,7 +16,6 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxadapt._checks import check_whole
-from jaxadapt.operators.pattanaik2000 import CURVE_LOG10_LUMINANCE
 
 
 def _marker(t):
@@ -43,8 +42,14 @@ def curve_frames(diag, count=8):
     return np.unique(np.searchsorted(progress, np.linspace(0.0, 1.0, count) - 1e-12))
 
 
-def plot_adaptation(path, diag, title):
-    """Adaptation state over time and the scene-to-display curve at a few times."""
+def plot_adaptation(path, diag, title, curve_log10_luminance):
+    """Adaptation state over time and the scene-to-display curve at a few times.
+
+    ``diag`` holds the columns of ``pattanaik2000.diagnostics_table``; its
+    ``curve`` column is the display value at the scene luminances
+    ``10**curve_log10_luminance`` cd/m2 (``pattanaik2000.CURVE_LOG10_LUMINANCE``),
+    passed in so that figures depend on no operator.
+    """
     t = diag["t"]
     marker = _marker(t)
     fig = Figure(figsize=(15, 4.2))
@@ -64,7 +69,7 @@ def plot_adaptation(path, diag, title):
     colors = matplotlib.colormaps["viridis"](np.linspace(0, 1, len(picks)))
     for c, i in zip(colors, picks, strict=True):
         ax.plot(
-            np.asarray(CURVE_LOG10_LUMINANCE), diag["curve"][i], color=c, label=f"t={t[i]:.2f} s"
+            np.asarray(curve_log10_luminance), diag["curve"][i], color=c, label=f"t={t[i]:.2f} s"
         )
     ax.set(
         xlabel="scene luminance (log$_{10}$ cd/m$^2$)",

@@ -504,7 +504,14 @@ def _operator(args, source, fps):
         )
         where = "goal " + goal if args.background == "global" else args.background + " background"
         title = f"{source.name}: Pattanaik et al. 2000, {where}"
-        return op, params, partial(figures.plot_adaptation, title=title), False
+        return (
+            op,
+            params,
+            partial(
+                figures.plot_adaptation, title=title, curve_log10_luminance=op.CURVE_LOG10_LUMINANCE
+            ),
+            False,
+        )
     if op is jacobs2015:
         title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
         params = op.Params(pixels_per_degree=ppd, afterimage_blur=op.blur_for_display(ppd, fps))
