@@ -21,6 +21,7 @@ from scipy.special import gammaln
 from scipy.stats import norm
 
 from jaxadapt import fitting
+from jaxadapt.fitting import _fit, _queue
 from jaxadapt.operators import pattanaik2000 as op
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import sigma_cone, sigma_rod
@@ -767,7 +768,7 @@ def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
     def model(params, frames):
         return jnp.log10(op.run(params, frames, 0.02)[1].state.A_cone)
 
-    monkeypatch.setattr(fitting, "LANES", 4)
+    monkeypatch.setattr(_fit, "LANES", 4)
     with jax.enable_x64(False):
         frames = jnp.ones((20, 1, 1, 3), jnp.float32).at[10:].set(100.0)
         clean = model(op.Params(t0_cone=np.linspace(0.04, 0.12, 70)[35]), frames)
@@ -788,8 +789,8 @@ def test_queued_fits_equal_one_vmapped_solve(uneven, monkeypatch, count_calls):
     data, plain = uneven
     steps = np.asarray(plain.steps)
     np.testing.assert_array_equal(steps, [12, 15, 8, 7, 6, 97])
-    monkeypatch.setattr(fitting, "LANES", 2)
-    traces = count_calls(fitting, "_fit_one")
+    monkeypatch.setattr(_fit, "LANES", 2)
+    traces = count_calls(_fit, "_fit_one")
     queued = fitting.fit(decay, Decay(), ABC, data, args=T, bounds=UNBOUNDED_C)
     assert traces == []  # the queue, not the vmapped solve
     np.testing.assert_array_equal(queued.steps, steps)
@@ -809,7 +810,7 @@ def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeyp
     # and b are not identified: not converged, their standard errors
     # infinite. The weak and slow rows are badly conditioned but converge.
     data, _ = uneven
-    monkeypatch.setattr(fitting, "LANES", 2)
+    monkeypatch.setattr(_fit, "LANES", 2)
     f = fitting.fit(decay, Decay(), ABC, data[::-1], args=T, bounds=UNBOUNDED_C)
     np.testing.assert_array_equal(f.steps, [97, 6, 7, 8, 15, 12])
     np.testing.assert_array_equal(f.converged, [False, True, True, True, True, True])
@@ -820,7 +821,7 @@ def test_queued_fits_that_do_not_converge_are_flagged_and_finite(uneven, monkeyp
     np.testing.assert_allclose(f.estimate["c"][0], 0.4, rtol=1e-4)
     # The compiled functions see the lanes, not the datasets: another number
     # of datasets traces nothing anew.
-    traces = count_calls(fitting._Lane, "__init__")
+    traces = count_calls(_queue._Lane, "__init__")
     g = fitting.fit(decay, Decay(), ABC, data[1:4], args=T, bounds=UNBOUNDED_C)
     assert traces == []
     np.testing.assert_array_equal(g.steps, [15, 8, 7])
@@ -832,8 +833,8 @@ def test_a_queue_traces_its_round_once(uneven, monkeypatch, count_calls):
     # rounds after the first reuse its compilation (_lanes is called once
     # when _start is traced and once when _round is).
     data, _ = uneven
-    monkeypatch.setattr(fitting, "LANES", 2)
-    traces = count_calls(fitting, "_lanes")
+    monkeypatch.setattr(_fit, "LANES", 2)
+    traces = count_calls(_queue, "_lanes")
 
     def model(params, t):  # a model of its own: nothing is compiled for it yet
         return decay(params, t)
@@ -846,7 +847,7 @@ def test_a_traced_call_is_one_vmapped_solve(decays, monkeypatch):
     # Under jit (or vmap) there is no host to keep a queue: the batch is
     # fitted in one vmapped solve, whatever the lanes.
     data, f = decays
-    monkeypatch.setattr(fitting, "LANES", 1)
+    monkeypatch.setattr(_fit, "LANES", 1)
     traced = jax.jit(lambda d: fitting.fit(decay, Decay(), ABC, d, args=T, bounds=UNBOUNDED_C))
     g = traced(data)
     np.testing.assert_array_equal(g.steps, f.steps)
@@ -937,6 +938,6 @@ def test_float32_follows_the_data_and_another_batch_does_not_retrace(
         for name in ABC:
             np.testing.assert_allclose(f32.estimate[name], f64.estimate[name], rtol=1e-3)
             np.testing.assert_allclose(f32.se[name], f64.se[name], rtol=1e-2)
-        traces = count_calls(fitting, "_fit_one")
+        traces = count_calls(_fit, "_fit_one")
         fitting.fit(decay, Decay(), ABC, data.astype(np.float32) + 0.01, **kw)
         assert traces == []

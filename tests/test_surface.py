@@ -8,7 +8,13 @@ import sys
 
 import pytest
 
-PACKAGES = ["jaxadapt", "jaxadapt.operators", "jaxadapt.physiology", "jaxadapt.psychophysics"]
+PACKAGES = [
+    "jaxadapt",
+    "jaxadapt.fitting",
+    "jaxadapt.operators",
+    "jaxadapt.physiology",
+    "jaxadapt.psychophysics",
+]
 
 
 @pytest.mark.parametrize("package", PACKAGES)
