@@ -73,7 +73,12 @@ def count_calls(monkeypatch):
 
 #: Doctests that compile whole fits: left out of the quick run
 #: (``pytest -m "not slow"``), as the slow tests are.
-SLOW_DOCTESTS = ("jaxadapt.fitting", "jaxadapt.psychophysics.psychometric")
+SLOW_DOCTESTS = (
+    "jaxadapt.fitting",
+    "jaxadapt.psychophysics.bootstrap",
+    "jaxadapt.psychophysics.psychometric",
+    "jaxadapt.psychophysics.sharding",
+)
 
 
 def pytest_collection_modifyitems(items):

@@ -294,8 +294,9 @@ def test_the_bootstrap_in_batches_gives_the_one_call_result():
     # 6 datasets (a 2 x 3 batch) of 50 resamples in one call, and within a
     # budget of 20 fits: one dataset a call, resamples in blocks of 20 (the
     # last padded, its extra resamples dropped). Same resamples, same
-    # intervals (to the last bit or two: XLA vectorises a batch of 1 and
-    # one of 6 differently); the datasets reported done add up to all.
+    # intervals up to rounding (XLA vectorises a batch of 1 and one of 6
+    # differently, and the fits' iterations carry the last bits further:
+    # 4e-12 relative seen); the datasets reported done add up to all.
     rng = np.random.default_rng(3)
     n = np.full((2, 3, 5), 30)
     k = rng.binomial(n, norm.cdf((X - 0.02) / 0.15))
@@ -308,7 +309,7 @@ def test_the_bootstrap_in_batches_gives_the_one_call_result():
     assert done == [1] * 6
     assert whole.pse_ci.shape == (2, 3, 2)
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(parts), strict=True):
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-15)
     assert np.all(whole.pse_ci[..., 0] < whole.pse_ci[..., 1])
 
 

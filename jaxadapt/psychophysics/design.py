@@ -269,8 +269,8 @@ def _shuffle(words, n):
 
     Each round keeps the high ``32 - b`` bits of a word per entry, puts the
     entry itself in the low ``b`` bits and sorts these words: one
-    single-operand integer sort, which XLA's CPU backend runs several times
-    faster than a key-value sort (``argsort``, or ``jax.random.permutation``
+    single-operand integer sort, which XLA's CPU backend runs faster than a
+    key-value sort (``argsort``, or ``jax.random.permutation``
     then a stable sort). Entries whose random bits tie in a round come out
     in the order of their low bits, but a given pair ties in every round
     with probability at most ``2**-32``.
@@ -342,8 +342,8 @@ def trial_list(protocol, key):
 def _responses(trials, responses):
     """``responses`` as an array, checked to hold one answer per trial on its
     last axis, each 0 or 1 (``ValueError`` otherwise; traced values are not
-    checked). Coded 1/2, responses were half "correct" and counted 60 "yes"
-    of 30 trials; NaN counted as a correct "no"."""
+    checked): scoring and counting would silently misread any other coding
+    (1/2, or NaN for a missing answer)."""
     responses = jnp.asarray(responses)
     n_trials = trials.level.shape[-1]
     if responses.shape[-1:] != (n_trials,):
@@ -386,7 +386,7 @@ def excluded(protocol, trials, responses):
     """Whether a participant is excluded: fewer than ``protocol.exclusion`` of
     the training trials correct (§4.1.1: "less than 70% of the time"). A
     protocol without training trials excludes no one: there is nothing to
-    score (it excluded everyone, with 0 of 0 correct).
+    score, and 0 of 0 correct is no failure.
 
     Examples
     --------

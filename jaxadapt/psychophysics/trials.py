@@ -1,4 +1,4 @@
-"""Trial tables in, fit tables out: the files of ``jaxadapt psychometric``.
+"""Trial tables in: the input files of ``jaxadapt psychometric fit``.
 
 A trial table is a CSV file with a header row and either one row per trial,
 
@@ -14,10 +14,10 @@ or one row per level with counts,
 ``level`` is log10 units relative to the standard and ``response`` is 1 when
 the test was judged brighter. ``participant`` and ``condition`` may be left
 out (one group, named ``"all"``). :func:`read_trials` reads and validates
-such a file, :func:`group_trials` gathers the counts of each (participant,
-condition) into padded arrays for the vmapped fit, :func:`fit_groups` fits
-them all in one call, and :func:`write_fits` writes ``fits.csv``;
-:func:`fit_file` does all four, paths in, table out.
+such a file and :func:`group_trials` gathers the counts of each
+(participant, condition) into padded arrays for the vmapped fit;
+:mod:`~jaxadapt.psychophysics.fit_table` fits them and writes ``fits.csv``
+(its names are also reachable from this module).
 
 Every problem in the input raises ``ValueError`` with a message that names the
 file and the row (rows are counted as a spreadsheet shows them, the header
@@ -29,15 +29,9 @@ import csv
 from pathlib import Path
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import ndtri
-from scipy.optimize import brentq, minimize_scalar
-from scipy.special import log_ndtr
 
-from jaxadapt.io import atomic_path, csv_writer
-from jaxadapt.psychophysics import psychometric
+from jaxadapt.psychophysics._moved import forward
 
 #: Columns of a trial table with one row per trial.
 TRIAL_COLUMNS = ("participant", "condition", "level", "response")
@@ -45,24 +39,6 @@ TRIAL_COLUMNS = ("participant", "condition", "level", "response")
 COUNT_COLUMNS = ("participant", "condition", "level", "n_yes", "n_total")
 #: Group columns that may be left out.
 OPTIONAL_COLUMNS = ("participant", "condition")
-#: Columns of ``fits.csv``.
-FIT_COLUMNS = (
-    "participant",
-    "condition",
-    "pse",
-    "sigma",
-    "b0",
-    "b1",
-    "se_pse",
-    "ci_low",
-    "ci_high",
-    "pse_low",
-    "pse_high",
-    "sigma_max",
-    "loglik",
-    "converged",
-    "flags",
-)
 
 
 class TrialTable(NamedTuple):
@@ -107,33 +83,6 @@ class Groups(NamedTuple):
     levels: np.ndarray
     n_yes: np.ndarray
     n_total: np.ndarray
-
-
-class FitTable(NamedTuple):
-    """One row per group; the fields are the columns of ``fits.csv``
-    (``FIT_COLUMNS``). ``ci_low, ci_high`` bound the PSE (see
-    :func:`fit_groups`); ``flags`` are the integer flags of
-    :mod:`jaxadapt.psychophysics.psychometric`. Where the data do not determine the
-    fit (:func:`undetermined`), what they leave open is NaN and
-    ``converged`` false, and ``pse_low, pse_high`` (the levels the PSE lies
-    between) and ``sigma_max`` (a 95% bound on sigma, for separated data)
-    say what they do determine; elsewhere those three are NaN."""
-
-    participant: tuple
-    condition: tuple
-    pse: np.ndarray
-    sigma: np.ndarray
-    b0: np.ndarray
-    b1: np.ndarray
-    se_pse: np.ndarray
-    ci_low: np.ndarray
-    ci_high: np.ndarray
-    pse_low: np.ndarray
-    pse_high: np.ndarray
-    sigma_max: np.ndarray
-    loglik: np.ndarray
-    converged: np.ndarray
-    flags: np.ndarray
 
 
 # -- reading ------------------------------------------------------------------
@@ -191,14 +140,6 @@ def _fail(path, rows, bad, column, expected, values):
     raise ValueError(
         f"{path}, row {rows[i]}: column '{column}': expected {expected}, got {values[i]!r}"
     )
-
-
-def _is_number(text):
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _numbers(path, rows, column, values):
@@ -302,9 +243,6 @@ def read_trials(path):
     )
 
 
-# -- grouping -----------------------------------------------------------------
-
-
 def _not_utf8(path):
     """The message for a trial table that is not UTF-8: where, and whether it
     is UTF-16 or UTF-32 text (a spreadsheet's "Unicode text"), other binary
@@ -371,221 +309,12 @@ def group_trials(table):
     return Groups(tuple(table.participant[starts]), tuple(table.condition[starts]), *arrays)
 
 
-# -- fitting and writing ------------------------------------------------------
-
-
-def fit_groups(
-    groups,
-    *,
-    key,
-    n_resamples=1000,
-    method="parametric",
-    confidence=0.95,
-    guess=0.0,
-    lapse=0.0,
-    progress=None,
-    keep_undetermined=False,
-):
-    """Fit every group, with confidence intervals for the PSE.
-
-    The interval is the bootstrap's percentile interval (or the Wald
-    interval), except where the data do not determine the fit
-    (:data:`jaxadapt.psychophysics.psychometric.NO_MLE`). Under separation the data
-    say only that the PSE lies between the highest level with a "no" and
-    the lowest with a "yes" (for a rising function): every PSE in that
-    gap fits them as well in the limit of a steep slope. The prior then
-    picks one, and resamples of the fitted curve, nearly a step, separate
-    again at the same levels: the percentile interval came out 0.04 log
-    units wide in a gap of 0.15. So the interval written spans at least
-    the gap. Where the data place no PSE at all
-    (:data:`~jaxadapt.psychophysics.psychometric.NO_PSE`: every response the same,
-    one level, no slope) it is ``(-inf, inf)``.
-
-    Parameters
-    ----------
-    groups : Groups
-    key : PRNG key
-        For the bootstrap; same key, same intervals.
-    n_resamples : int, optional
-        Bootstrap resamples per group; 0 gives Wald intervals
-        ``pse +- z se_pse`` from the observed information instead.
-    method, confidence, guess, lapse, progress
-        As for :func:`jaxadapt.psychophysics.psychometric.bootstrap` (``progress``
-        is called with the number of groups done).
-    keep_undetermined : bool, optional
-        Keep the estimates of groups whose data do not determine the fit
-        (:func:`undetermined`), which the fit's prior and least slope set,
-        instead of NaN; ``converged`` is false for them either way.
-
-    Returns
-    -------
-    FitTable
-    """
-    if n_resamples == 1:  # the bootstrap's own message asked for >= 2 only
-        raise ValueError("n_resamples: expected 0 (Wald intervals) or at least 2, got 1")
-    count = len(groups.participant)
-    options = dict(guess=guess, lapse=lapse)
-    if n_resamples:  # in batches of its own (psychometric.bootstrap_blocks)
-        arrays = (jnp.asarray(a) for a in (groups.levels, groups.n_yes, groups.n_total))
-        boot = psychometric.bootstrap(
-            key,
-            *arrays,
-            n_resamples=n_resamples,
-            method=method,
-            confidence=confidence,
-            progress=progress,
-            **options,
-        )
-        fits, low, high = boot.fit, boot.pse_ci[:, 0], boot.pse_ci[:, 1]
-    else:
-        rows = np.concatenate([np.arange(count), np.zeros(batch_size(count) - count, int)])
-        arrays = (jnp.asarray(a[rows]) for a in (groups.levels, groups.n_yes, groups.n_total))
-        fits = psychometric.fit(*arrays, **options)
-        half = ndtri((1 + confidence) / 2) * fits.se_pse
-        low, high = fits.pse - half, fits.pse + half
-        if progress is not None:
-            progress(count)
-    fits, low, high = (jax.tree.map(lambda a: np.asarray(a)[:count], x) for x in (fits, low, high))
-    low, high = _at_least_the_data(groups, fits.flags, low, high)
-    open_ = undetermined(fits.flags)
-    gap_low, gap_high = separating_gap(groups)
-    unplaced = (fits.flags & psychometric.NO_PSE) > 0
-    single = (fits.flags & psychometric.SINGLE_LEVEL) > 0
-    pse_low = np.where(open_, np.where(single, -np.inf, gap_low), np.nan)
-    pse_high = np.where(open_, np.where(single, np.inf, gap_high), np.nan)
-    separated = ((fits.flags & psychometric.SEPARATION) > 0) & ~unplaced
-    sigma_max = np.full(count, np.nan)
-    for i in np.flatnonzero(separated):
-        sigma_max[i] = sigma_bound(groups.levels[i], groups.n_yes[i], groups.n_total[i])
-    values = {name: getattr(fits, name) for name in ("pse", "sigma", "b0", "b1", "se_pse")}
-    if not keep_undetermined:
-        no_mle = (fits.flags & psychometric.NO_MLE) > 0
-        for name, column in values.items():
-            # a flat slope's b0 and b1 are the data's; its PSE and sigma are not
-            blank = open_ if name in ("pse", "sigma", "se_pse") else no_mle
-            values[name] = np.where(blank, np.nan, column)
-    return FitTable(
-        groups.participant,
-        groups.condition,
-        *values.values(),
-        low,
-        high,
-        pse_low.astype(low.dtype),
-        pse_high.astype(low.dtype),
-        sigma_max.astype(low.dtype),
-        fits.loglik,
-        fits.converged & ~open_,
-        fits.flags,
-    )
-
-
-def undetermined(flags):
-    """Groups (by their fit's ``flags``) whose data do not determine the
-    fit: no maximum-likelihood estimate exists (every response the same,
-    separation, one level: :data:`~jaxadapt.psychophysics.psychometric.NO_MLE`), or
-    the slope is zero (``FLAT``), which places no PSE."""
-    return (np.asarray(flags) & (psychometric.NO_MLE | psychometric.FLAT)) > 0
-
-
-#: Confidence of :func:`sigma_bound`, and the drop of the log-likelihood
-#: that bounds it: half the chi-squared quantile of one degree of freedom.
-SIGMA_BOUND_LEVEL = 0.95
-_SIGMA_DROP = 0.5 * 3.841458820694124
-
-
-def sigma_bound(levels, n_yes, n_total):
-    """The largest spread ``sigma`` (log10 units) that data whose levels
-    separate the responses do not reject at :data:`SIGMA_BOUND_LEVEL`: the
-    profile likelihood's bound (the log-likelihood, maximised over the PSE,
-    within ``chi2(1) / 2`` of its supremum, reached as sigma goes to 0);
-    ``inf`` when no sigma is rejected (too few trials)."""
-    x, k, n = (np.asarray(a, float) for a in (levels, n_yes, n_total))
-    x, k, n = x[n > 0], k[n > 0], n[n > 0]
-    if np.sum(k * x) / max(np.sum(k), 1e-300) < np.sum((n - k) * x) / max(np.sum(n - k), 1e-300):
-        x = -x  # a falling function: its mirror image rises
-    span = max(np.ptp(x), 1e-3)
-
-    def profile(sigma):
-        def nll(pse):
-            z = (x - pse) / sigma
-            return -np.sum(k * log_ndtr(z) + (n - k) * log_ndtr(-z))
-
-        lo, hi = x.min() - 10 * sigma - span, x.max() + 10 * sigma + span
-        return -minimize_scalar(nll, bounds=(lo, hi), method="bounded").fun
-
-    target = profile(1e-9 * span) - _SIGMA_DROP
-    largest = 1e3 * span
-    if profile(largest) >= target:
-        return np.inf
-    log_sigma = brentq(
-        lambda u: profile(np.exp(u)) - target, np.log(1e-9 * span), np.log(largest), xtol=1e-10
-    )
-    return float(np.exp(log_sigma))
-
-
-def batch_size(count):
-    """The number of datasets :func:`fit_groups` fits ``count`` groups as:
-    the next power of two, the groups after the first ``count`` copies of
-    the first (each dataset of the vmapped fit is fitted on its own, and a
-    copy stops when the first does, so it adds no step).
-
-    A compiled fit serves one batch size, and compiling the fit and its
-    bootstrap takes about 15 s of a first ``jaxadapt psychometric fit``
-    (28 s in all, against 12.5 s for the same table again, with the
-    compilation cache of :func:`jaxadapt.runtime.cache_compilations`).
-    With sizes rounded up, tables of 9 to 16 groups share one program: a
-    later table of another size in the range loads it instead of compiling
-    it again. At most twice the datasets are fitted, in a call that takes
-    less time than its compilation.
-
-    Examples
-    --------
-    >>> [batch_size(n) for n in (1, 2, 3, 12, 16, 17, 340)]
-    [1, 2, 4, 16, 16, 32, 512]
-    """
-    return 1 << (count - 1).bit_length()
-
-
-def separating_gap(groups):
-    """Per group, the levels ``(low, high)`` between which the responses
-    change: the highest level with a "no" and the lowest with a "yes" when
-    every "no" lies at or below every "yes", the reverse for a falling
-    function; where neither holds, ``(-inf, inf)``. Under separation
-    (:data:`jaxadapt.psychophysics.psychometric.SEPARATION`) the PSE lies in it."""
-    x, k, n = groups.levels, groups.n_yes, groups.n_total
-    yes, no = (n > 0) & (k > 0), (n > 0) & (k < n)
-    top = [np.max(np.where(m, x, -np.inf), axis=1) for m in (no, yes)]
-    bottom = [np.min(np.where(m, x, np.inf), axis=1) for m in (yes, no)]
-    rising, falling = top[0] <= bottom[0], top[1] <= bottom[1]
-    low = np.where(rising, top[0], np.where(falling, top[1], -np.inf))
-    high = np.where(rising, bottom[0], np.where(falling, bottom[1], np.inf))
-    return low, high
-
-
-def _at_least_the_data(groups, flags, low, high):
-    """The PSE interval ``(low, high)`` widened to what the data leave
-    open: the separating gap under separation, everything where they place
-    no PSE (:func:`fit_groups`)."""
-    low, high = np.asarray(low), np.asarray(high)
-    gap_low, gap_high = (g.astype(low.dtype) for g in separating_gap(groups))
-    separated = (flags & psychometric.SEPARATION) > 0
-    unplaced = (flags & psychometric.NO_PSE) > 0
-    low = np.where(separated, np.minimum(low, gap_low), low)
-    high = np.where(separated, np.maximum(high, gap_high), high)
-    return np.where(unplaced, -np.inf, low), np.where(unplaced, np.inf, high)
-
-
-#: How ``write_fits`` formats the flags, a column of integers.
-_FORMATS = {"flags": lambda value: "|".join(psychometric.flag_names(value))}
-
-
 def csv_cell(value):
     """A CSV cell: a number as the shortest decimal that reads back to the
-    same value in its dtype (not ``str``: colour-science, which jaxadapt
-    imports, sets NumPy's printing to its 1.13 style, 6 significant digits in
-    float32 and 12 in float64; nor ``repr`` of the float64 it converts to,
-    which gives a float32 -0.1 as -0.10000000149011612), a boolean as
-    ``true``/``false``, anything else as ``str``."""
+    same value in its dtype (not ``str``, which follows NumPy's print
+    options, and imported libraries change those; nor ``repr`` of the
+    float64 it converts to, which spells out a float32's binary rounding),
+    a boolean as ``true``/``false``, anything else as ``str``."""
     if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
     if isinstance(value, (float, np.floating)):
@@ -593,41 +322,9 @@ def csv_cell(value):
     return str(value)
 
 
-def write_fits(path, table):
-    """Write ``fits.csv``: a header of ``FIT_COLUMNS`` and one row per group.
-
-    Numbers are written as the shortest decimal that reads back to the same
-    value in their dtype (:func:`csv_cell`), ``converged`` as ``true``/``false``
-    and ``flags`` as flag names joined by ``|`` (empty when none). The file
-    appears only once complete (:func:`jaxadapt.io.atomic_path`).
-    """
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
-        writer = csv_writer(file)
-        writer.writerow(FIT_COLUMNS)
-        for row in zip(*table, strict=True):
-            cells = zip(FIT_COLUMNS, row, strict=True)
-            writer.writerow([_FORMATS.get(c, csv_cell)(v) for c, v in cells])
-
-
-def fit_file(trials_path, fits_path, *, key, **options):
-    """Read a trial table, fit every group and write ``fits.csv``.
-
-    Parameters
-    ----------
-    trials_path, fits_path : str or Path
-        The trial table to read and the fit table to write.
-    key : PRNG key
-        For the bootstrap.
-    **options
-        ``n_resamples``, ``method``, ``confidence``, ``guess``, ``lapse`` of
-        :func:`fit_groups`.
-
-    Returns
-    -------
-    FitTable
-        What was written, e.g. for the group test between conditions
-        (:func:`jaxadapt.psychophysics.stats.compare` on the PSEs).
-    """
-    table = fit_groups(group_trials(read_trials(trials_path)), key=key, **options)
-    write_fits(fits_path, table)
-    return table
+#: Names that moved to modules of their own, still found here.
+__getattr__ = forward(
+    __name__,
+    fit_table=("FIT_COLUMNS", "FitTable", "batch_size", "fit_file", "fit_groups", "write_fits"),
+    separation=("SIGMA_BOUND_LEVEL", "separating_gap", "sigma_bound", "undetermined"),
+)

@@ -1,0 +1,248 @@
+"""The stimuli of the 2015 paper's two constant-stimuli experiments,
+rendered with the 2015 operator as they are shown on the display.
+
+:func:`afterimage_displays` renders the camera flash of §4.1.1 and
+:func:`mesopic_displays` the colour checker of §4.2.1 of Jacobs et al.
+(2015), through :mod:`jaxadapt.operators.jacobs2015` (``Params`` and ``run``
+only), once per condition and level; :data:`DISPLAYS` picks one by protocol
+name.
+"""
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxadapt import scenes
+from jaxadapt.color import photopic_luminance
+from jaxadapt.operators import jacobs2015
+
+
+class Displays(NamedTuple):
+    """Rendered stimuli as they are shown on the display.
+
+    Attributes
+    ----------
+    test : array, (C, L, T, H, W, 3)
+        Each condition's test at each level: linear BT.709 RGB, cd/m2.
+    standard : array, (T, H, W, 3)
+        The standard, cd/m2.
+    presented : array of bool, (T,)
+        Frames on which the image is shown.
+    blank : array of bool, (T,)
+        Frames of the black screen that follows it (afterimages appear there).
+    ambient : float
+        Luminance of the room with the black screen shown, cd/m2.
+    times : array, (T,)
+        Time of each frame, s.
+    """
+
+    test: jax.Array
+    standard: jax.Array
+    presented: jax.Array
+    blank: jax.Array
+    ambient: float
+    times: np.ndarray
+
+
+def _check_conditions(protocol):
+    if tuple(protocol.conditions) != ("control", "manipulated"):
+        raise ValueError(
+            f"protocol.conditions: expected ('control', 'manipulated'), got {protocol.conditions!r}"
+        )
+
+
+def _whole_frames(name, seconds, fps, least):
+    """``seconds`` as a whole number (at least ``least``) of frames at ``fps``,
+    ``n / fps`` exactly, so that the flash's edges fall on frame starts; a
+    ValueError naming ``name`` when it is not within 1e-6 of a frame."""
+    n = seconds * fps
+    if abs(n - round(n)) > 1e-6 or round(n) < least:
+        raise ValueError(
+            f"{name}: expected a whole number (>= {least}) of frames at fps = {fps!r}, "
+            f"got {seconds!r} s ({n:.4g} frames)"
+        )
+    return round(n) / fps
+
+
+def afterimage_displays(
+    protocol,
+    *,
+    key,
+    width=32,
+    height=32,
+    fps=40.0,
+    lead_s=0.25,
+    flash_luminance=1e7,
+    j1=(3e-4, 1e-3),
+):
+    """The stimuli of the afterimage experiment (§4.1.1), rendered.
+
+    The camera-flash scene is :func:`jaxadapt.scenes.flash`: a white disk of
+    ``flash_luminance`` cd/m2 (the flash of the paper's Fig. 4) at the
+    fixation, shown for ``protocol.presentation_s`` (50 ms) after
+    ``lead_s`` of darkness, then ``protocol.blank_s`` (2.5 s) of black on
+    which the afterimage appears. It is rendered by the 2015 operator with
+    the paper's weak synthetic afterimage (``j1 = 3e-4``: standard and
+    control tests) and strong one (``j1 = 1e-3``: manipulated tests); the
+    acuity loss (which leaves a photopic flash and a black screen unchanged)
+    and the dithering are off, so that the rendering is deterministic.
+
+    On the display, a linear value ``v`` is shown at ``k v`` cd/m2, ``k``
+    chosen so that the standard's flash (its brightest point, averaged over
+    the shown frames) measures ``protocol.standard`` (27 cd/m2). Tests are
+    "identical to the standard, but scaled": their shown frames are
+    multiplied by ``10^level``; the blank frames are not, so that the
+    afterimage of each condition is the same at every level, as the paper
+    gives one afterimage luminance per condition.
+
+    The afterimage is linear in ``j1``, so the strong one is ``j1``'s ratio
+    times the weak one, close to the ratio of the afterimage luminances the
+    paper measured on its display (§4.1.1; :data:`jaxadapt.psychophysics.design.AFTERIMAGE`).
+    The retinal maps are blurred between frames by the angle they spread
+    on the paper's display
+    (:func:`~jaxadapt.operators.jacobs2015.blur_for_display`), so the
+    strong afterimage's maps reach a little beyond the disk during the
+    flash, which the desaturation cue registers as slightly more colour.
+
+    Parameters
+    ----------
+    protocol : design.Protocol
+        With conditions ``("control", "manipulated")``.
+    key : PRNG key
+        Unused (the rendering is deterministic); accepted for a common
+        signature with :func:`mesopic_displays`.
+    width, height : int
+        Frame size, pixels (the scene spans 10 degrees).
+    fps : float
+        Frame rate, frames per second: a display shows whole frames, so
+        ``presentation_s`` and ``lead_s`` must each last a whole number of
+        them (the flash at least one).
+    lead_s : float
+        Darkness before the flash, s.
+    flash_luminance : float
+        Luminance of the flash in the depicted scene, cd/m2.
+    j1 : (float, float)
+        Bleaching-afterimage strengths of the control and manipulated tests.
+
+    Returns
+    -------
+    Displays
+    """
+    del key
+    _check_conditions(protocol)
+    presentation = _whole_frames("protocol.presentation_s", protocol.presentation_s, fps, 1)
+    lead_s = _whole_frames("lead_s", lead_s, fps, 0)
+    blank_s = protocol.blank_s
+    scene = scenes.flash(
+        width,
+        height,
+        duration=lead_s + presentation + blank_s,
+        fps=fps,
+        luminance=flash_luminance,
+        flash_duration=presentation,
+        onset=lead_s,
+    )
+    times = scene.times
+    half = 0.5 / fps
+    presented = (times >= lead_s - half) & (times < lead_s + presentation - half)
+    blank = times >= lead_s + presentation - half
+    frames = jnp.asarray(scene.render(times), jnp.float32)
+    gaze = jnp.asarray(scene.gaze(times), jnp.float32)
+    ppd = scene.pixels_per_degree
+    params = jacobs2015.Params(
+        acuity=False,
+        dithering=False,
+        pixels_per_degree=ppd,
+        afterimage_blur=jacobs2015.blur_for_display(ppd, fps),
+    )
+
+    def render(strength):
+        version = dataclasses.replace(params, j1=strength)
+        out, _ = jacobs2015.run(version, frames, scene.dt, gaze=gaze, key=jax.random.key(0))
+        return jacobs2015.decode(version, out)
+
+    weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
+    shown = jnp.asarray(presented)
+    flash = jnp.sum(photopic_luminance(weak) * shown[:, None, None], axis=0) / np.sum(presented)
+    k = protocol.standard / jnp.max(flash)  # cd/m2 per unit of linear display value
+    levels = jnp.asarray(protocol.levels, jnp.float32)
+    scale = jnp.where(shown, 10.0 ** levels[:, None], 1.0)[..., None, None, None]  # (L, T, 1, 1, 1)
+    standard = k * weak
+    test = jnp.stack([standard * scale, k * strong * scale])
+    return Displays(
+        test, standard, jnp.asarray(presented), jnp.asarray(blank), protocol.ambient, times
+    )
+
+
+def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
+    """The stimuli of the mesopic experiment (§4.2.1), rendered.
+
+    The ColorChecker of :func:`jaxadapt.scenes.mesopic`, its white tile at
+    the test's (or the standard's) luminance, shown for
+    ``protocol.presentation_s`` (1.25 s). Every image goes through the 2015
+    operator, so that the standard and the tests share its tone curve; the
+    manipulated tests with the mesopic colour shift and the stochastic
+    acuity loss on, the standard and the control tests with them off. The
+    Purkinje shift is off in both, as in the paper; bleaching, local
+    adaptation and dithering are off (a steady chart leaves no afterimage).
+    The acuity noise uses the same ``key`` at every level (common random
+    numbers: the features change smoothly with the level).
+
+    The mesopic tests are "rendered with the color and acuity mesopic
+    effects before intensity scaling": each rendered image is scaled on
+    the display to the mean photopic luminance of the chart it depicts, so
+    that the standard, control and manipulated tests at a level have the
+    same mean luminance and differ only in colour and detail. The black
+    screen after each image is not rendered (it shows nothing).
+
+    Parameters
+    ----------
+    protocol : design.Protocol
+        With conditions ``("control", "manipulated")``.
+    key : PRNG key
+        For the acuity noise.
+    width, height : int
+        Frame size, pixels (the chart spans 20 degrees).
+    fps : float
+        Frame rate, frames per second.
+
+    Returns
+    -------
+    Displays
+    """
+    _check_conditions(protocol)
+    whites = (*protocol.tests, protocol.standard)
+    charts = [scenes.mesopic(width, height, protocol.presentation_s, fps, white=w) for w in whites]
+    times = charts[0].times
+    frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
+    gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
+    ppd = charts[0].pixels_per_degree
+    plain = jacobs2015.only(pixels_per_degree=ppd)
+    effects = jacobs2015.only("mesopic_colour", "acuity", pixels_per_degree=ppd)
+
+    def render(params, batch):
+        def one(f):
+            out, _ = jacobs2015.run(params, f, 1.0 / fps, gaze=gaze, key=key)
+            lin = jacobs2015.decode(params, out)
+            return lin * jnp.mean(photopic_luminance(f)) / jnp.mean(photopic_luminance(lin))
+
+        return jax.vmap(one)(batch)
+
+    control = render(plain, frames)
+    manipulated = render(effects, frames[:-1])
+    T = len(times)
+    return Displays(
+        jnp.stack([control[:-1], manipulated]),
+        control[-1],
+        jnp.ones(T, bool),
+        jnp.zeros(T, bool),
+        protocol.ambient,
+        times,
+    )
+
+
+#: How each preset's stimuli are made, by protocol name.
+DISPLAYS = {"afterimage": afterimage_displays, "mesopic": mesopic_displays}

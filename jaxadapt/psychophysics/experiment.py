@@ -1,0 +1,219 @@
+"""Whole simulated experiments: observers drawn from a population, each
+through every trial of a protocol, and the results as tables.
+
+Thousands of observers run in one compiled, ``vmap``-ped call
+(:func:`simulate`); their analysed trials come out as a trial table
+(:func:`write_trials`, read back by
+:func:`jaxadapt.psychophysics.trials.read_trials`) or as the counts the fits
+take (:func:`groups`), leaving out training trials and excluded observers as
+Jacobs et al. (2015), §4.1.1, does.
+"""
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+# io as a module, not ``from jaxadapt.io import atomic_path``: JAX keeps this
+# package's pytree classes until the interpreter exits, and through them a
+# bare function would keep io's globals, OpenImageIO among them, alive past
+# the clean-up of modules at exit, which OpenImageIO's bindings then report.
+from jaxadapt import io
+from jaxadapt._checks import check_whole
+from jaxadapt.operators.checks import plain_errors
+from jaxadapt.psychophysics import design
+from jaxadapt.psychophysics import trials as trial_tables
+from jaxadapt.psychophysics.observer import Observer, _checked, respond
+from jaxadapt.psychophysics.population import _observer_key, draw_observers
+
+
+class Experiment(NamedTuple):
+    """A simulated experiment (leading axis: observers).
+
+    Attributes
+    ----------
+    observers : jaxadapt.psychophysics.observer.Observer
+        Fields of shape ``(N,)`` (weights ``(N, K)``).
+    trials : design.Trials
+        Each observer's trial sequence, ``(N, n_trials)``.
+    responses : array, (N, n_trials)
+        1 when the test was judged brighter.
+    excluded : array of bool, (N,)
+        Fewer than ``protocol.exclusion`` of the training trials correct.
+    """
+
+    observers: Observer
+    trials: design.Trials
+    responses: jax.Array
+    excluded: jax.Array
+
+
+def run_observer(key, protocol, stimuli, observer):
+    """One observer through a protocol: ``(trials, responses)``.
+
+    The trial order comes from ``split(key)[0]``
+    (:func:`jaxadapt.psychophysics.design.trial_list`), the answers from
+    ``split(key)[1]`` (:func:`~jaxadapt.psychophysics.observer.respond`).
+    """
+    order_key, answer_key = jax.random.split(key)
+    trials = design.trial_list(protocol, order_key)
+    return trials, respond(answer_key, stimuli, observer, trials)
+
+
+@eqx.filter_jit
+def _simulate_observers(key, protocol, stimuli, observers):
+    observers = _checked(observers, "observers")
+    n = observers.noise.shape[0]
+    keys = jax.vmap(_observer_key, (None, 0))(key, jnp.arange(n))
+    trials, responses = jax.vmap(lambda k, o: run_observer(k, protocol, stimuli, o))(
+        keys, observers
+    )
+    excluded = design.excluded(protocol, trials, responses)
+    return Experiment(observers, trials, responses, excluded)
+
+
+@plain_errors
+def simulate_observers(key, protocol, stimuli, observers):
+    """Given observers through a protocol, all in one ``vmap``-ped call.
+
+    Parameters
+    ----------
+    key : PRNG key
+        Observer ``i`` runs :func:`run_observer` with ``fold_in(key, i)``, so
+        the result equals that loop and observer ``i``'s trials do not
+        depend on how many observers there are.
+    protocol : design.Protocol
+    stimuli : jaxadapt.psychophysics.stimuli.Stimuli
+    observers : jaxadapt.psychophysics.observer.Observer
+        A batch: fields with a leading axis ``N``.
+
+    Returns
+    -------
+    Experiment
+
+    Raises
+    ------
+    ValueError
+        Observers without one leading batch axis.
+    equinox.EquinoxRuntimeError
+        A noise that is not positive, or a lapse rate outside [0, 1).
+    """
+    if jnp.ndim(observers.noise) != 1:
+        raise ValueError(
+            f"observers: expected a batch with one leading axis, got noise of shape "
+            f"{jnp.shape(observers.noise)}"
+        )
+    return _simulate_observers(key, protocol, stimuli, observers)
+
+
+def simulate(key, protocol, stimuli, population, n_observers):
+    """A whole experiment: ``n_observers`` drawn from a population, each
+    through every trial of the protocol, in one compiled, ``vmap``-ped call.
+
+    Parameters
+    ----------
+    key : PRNG key
+        Same key, same experiment. ``split(key)[0]`` draws the observers
+        (:func:`~jaxadapt.psychophysics.population.draw_observers`), ``split(key)[1]`` their trials
+        (:func:`simulate_observers`).
+    protocol : design.Protocol
+    stimuli : jaxadapt.psychophysics.stimuli.Stimuli
+        From :func:`~jaxadapt.psychophysics.stimuli.render_stimuli` (or
+        :func:`~jaxadapt.psychophysics.stimuli.plain_stimuli`).
+    population : jaxadapt.psychophysics.population.Population
+    n_observers : int
+
+    Returns
+    -------
+    Experiment
+
+    Examples
+    --------
+    >>> from jaxadapt.psychophysics.population import POPULATIONS
+    >>> from jaxadapt.psychophysics.stimuli import plain_stimuli
+    >>> s = plain_stimuli(design.AFTERIMAGE)
+    >>> e = simulate(jax.random.key(0), design.AFTERIMAGE, s, POPULATIONS["afterimage"], 4)
+    >>> e.responses.shape, e.excluded.shape
+    ((4, 320), (4,))
+    """
+    n = check_whole("n_observers", n_observers, least=1)
+    draw_key, trial_key = jax.random.split(key)
+    return _simulate_draws(draw_key, trial_key, protocol, stimuli, population, n)
+
+
+@eqx.filter_jit
+def _simulate_draws(draw_key, trial_key, protocol, stimuli, population, n):
+    observers = draw_observers(draw_key, population, n)
+    return _simulate_observers(trial_key, protocol, stimuli, observers)
+
+
+# -- tables -------------------------------------------------------------------
+
+
+def participant_names(n):
+    """``s01, s02, ...``, zero-padded to the width of ``n``."""
+    width = max(2, len(str(n)))
+    return [f"s{i + 1:0{width}d}" for i in range(n)]
+
+
+def trial_table(protocol, experiment):
+    """The analysed trials of the included observers, as columns.
+
+    Returns
+    -------
+    dict of numpy arrays
+        ``participant`` (:func:`participant_names`), ``condition`` (its
+        name), ``level`` (log10 test/standard, the protocol's exact
+        values), ``response`` (0/1), ``block`` (its name) and
+        ``test_first`` (0/1), one row per trial in presentation order,
+        observer after observer. Training trials and excluded observers
+        are left out, as in the paper's analysis.
+    """
+    trials = jax.tree.map(np.asarray, experiment.trials)
+    keep = ~trials.training & ~np.asarray(experiment.excluded)[:, None]
+    names = np.array(participant_names(keep.shape[0]), dtype=object)
+    who = np.broadcast_to(np.arange(keep.shape[0])[:, None], keep.shape)[keep]
+    return {
+        "participant": names[who],
+        "condition": np.array(protocol.conditions, dtype=object)[trials.condition[keep]],
+        "level": np.asarray(protocol.levels)[trials.level_index[keep]],
+        "response": np.asarray(experiment.responses)[keep].astype(int),
+        "block": np.array([b.name for b in protocol.blocks], dtype=object)[trials.block[keep]],
+        "test_first": trials.test_first[keep].astype(int),
+    }
+
+
+def write_trials(path, protocol, experiment):
+    """Write :func:`trial_table` as a CSV trial table (read back by
+    :func:`jaxadapt.psychophysics.trials.read_trials`; the extra columns
+    ``block`` and ``test_first`` are ignored there). Levels are written
+    exactly (:func:`~jaxadapt.psychophysics.trials.csv_cell`). The file
+    appears only once complete. Returns the number of rows."""
+    table = trial_table(protocol, experiment)
+    with io.atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
+        writer = io.csv_writer(file)
+        writer.writerow(table)
+        for row in zip(*table.values(), strict=True):
+            writer.writerow([trial_tables.csv_cell(v) for v in row])
+    return len(table["response"])
+
+
+def groups(protocol, experiment):
+    """Counts of the included observers per condition and level, as the
+    :class:`jaxadapt.psychophysics.trials.Groups` that
+    :func:`jaxadapt.psychophysics.trials.fit_groups` and the figures take
+    (participant-major, conditions in the protocol's order)."""
+    n_yes, n_total = design.counts(protocol, experiment.trials, experiment.responses)
+    keep = ~np.asarray(experiment.excluded)
+    names = np.array(participant_names(keep.shape[0]), dtype=object)[keep]
+    C, L = len(protocol.conditions), len(protocol.tests)
+    n_yes, n_total = (np.asarray(a, float)[keep].reshape(-1, L) for a in (n_yes, n_total))
+    return trial_tables.Groups(
+        tuple(np.repeat(names, C)),
+        tuple(protocol.conditions) * int(keep.sum()),
+        np.broadcast_to(np.asarray(protocol.levels), n_yes.shape).copy(),
+        n_yes,
+        n_total,
+    )
