@@ -742,3 +742,51 @@ def test_only_switches_on_the_named_effects_and_names_unknown_ones():
     assert p.global_adaptation and float(p.n) == 0.8
     with pytest.raises(ValueError, match="effects: expected names from"):
         op.only("purkinje", "glare")
+
+
+# -- acuity in degrees ----------------------------------------------------------
+
+
+def test_acuity_sizes_at_the_papers_display_are_appendix_a_pixels():
+    """At 64 pixels per degree the defaults are the pixel sizes they were
+    (Appendix A's sigma_0 = 0.75 pixels, a 16-pixel noise cell), exactly, so
+    that frames there do not change."""
+    p = op.Params()
+    assert (p.acuity_sigma0, p.acuity_noise_cell) == (0.75, 16.0)
+    frames = _acuity_frames()
+    explicit = op.Params(acuity_sigma0=0.75, acuity_noise_cell=16)
+    np.testing.assert_array_equal(render(p, frames)[0], render(explicit, frames)[0])
+
+
+def _acuity_frames():
+    rng = np.random.default_rng(1)
+    return jnp.asarray(rng.uniform(0.001, 0.1, (T, H, W, 3)))  # mesopic texture
+
+
+@pytest.mark.parametrize("ppd", [1.0, 12.8, 30.0, 100.0, 640.0])
+def test_acuity_bands_and_noise_cell_are_angles(ppd):
+    """Scaled with pixels per degree: the same angles on any display."""
+    p = op.Params(pixels_per_degree=ppd)
+    paper = op.Params()
+    scale = ppd / op.PAPER_PIXELS_PER_DEGREE
+    np.testing.assert_allclose(op.acuity_sigmas(p), np.multiply(op.acuity_sigmas(paper), scale))
+    assert p.acuity_noise_cell == pytest.approx(max(1.0, 16 * scale))
+
+
+def test_acuity_noise_at_half_the_resolution_is_the_same_field():
+    """The noise at 32 px/deg on a half-size frame is the 64 px/deg noise at
+    every other pixel: the same field of the visual angle."""
+    fine = op.acuity_noise(op.Params(), KEY, jnp.float64(0.3), (64, 96))
+    coarse = op.acuity_noise(op.Params(pixels_per_degree=32.0), KEY, jnp.float64(0.3), (32, 48))
+    np.testing.assert_allclose(coarse, fine[::2, ::2], rtol=1e-12, atol=1e-12)
+
+
+def test_acuity_sizes_given_in_pixels_are_kept_and_batches_need_them():
+    p = op.Params(pixels_per_degree=20.0, acuity_sigma0=0.5, acuity_noise_cell=4)
+    assert (p.acuity_sigma0, p.acuity_noise_cell) == (0.5, 4)
+    with pytest.raises(ValueError, match="acuity_sigma0, acuity_noise_cell"):
+        op.Params(pixels_per_degree=jnp.array([20.0, 40.0]))
+    batch = op.Params(pixels_per_degree=jnp.array([20.0, 20.0]))  # one value: resolved
+    assert batch.acuity_sigma0 == 0.75 * 20 / 64
+    with pytest.raises(ValueError, match="acuity_noise_cell: expected > 0"):
+        op.Params(acuity_noise_cell=0.0)

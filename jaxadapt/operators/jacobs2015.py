@@ -97,6 +97,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt._checks import check_value, float_array
 from jaxadapt.background import LUMINANCE_FLOOR
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, W_PHOTOPIC, W_SCOTOPIC, transform
 from jaxadapt.display import dither
@@ -118,7 +119,6 @@ from jaxadapt.operators.goal import foveal_average
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import (
-    check_value,
     discrete_gaussian_kernel,
     gaussian_blur,
     separable_filter,
@@ -140,8 +140,27 @@ SCOTOPIC_COLOUR = np.array([1.25, 0.92, 1.35]) / (np.array([1.25, 0.92, 1.35]) @
 PAPER_PIXELS_PER_DEGREE = 64.0
 
 
-def _array(x):
-    return jnp.asarray(x, dtype=jnp.result_type(float))
+#: ``sigma_0`` of the acuity bands, degrees: Appendix A's 0.75 pixels on the
+#: paper's display (64 pixels per degree).
+ACUITY_SIGMA0_DEG = 0.75 / PAPER_PIXELS_PER_DEGREE
+#: Spacing of the acuity noise, degrees: 16 pixels on the paper's display.
+ACUITY_NOISE_CELL_DEG = 16 / PAPER_PIXELS_PER_DEGREE
+
+
+def _concrete_ppd(ppd):
+    """``pixels_per_degree`` as one Python float, for the static acuity
+    sizes; a ValueError where it is traced or a batch of different values."""
+    try:
+        values = np.unique(np.asarray(ppd, dtype=np.float64))
+    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+        values = None
+    if values is None or values.size != 1:
+        raise ValueError(
+            "acuity_sigma0, acuity_noise_cell: their defaults follow pixels_per_degree, which "
+            "must then be one concrete value; give both in pixels for a traced or batched "
+            "pixels_per_degree"
+        )
+    return float(values[0])
 
 
 class Params(eqx.Module):
@@ -201,13 +220,19 @@ class Params(eqx.Module):
     levels : float
         Top code value of the dithered display (255: 8 bits; §2.4).
     acuity_sigma0 : float
-        ``sigma_0`` of the acuity bands, pixels (0.75); ``sigma_i =
-        sigma_0 2^(i/4)``. Static (it sets kernel lengths).
+        ``sigma_0`` of the acuity bands, pixels; ``sigma_i = sigma_0
+        2^(i/4)``. Default: :data:`ACUITY_SIGMA0_DEG` times
+        ``pixels_per_degree`` (0.75 pixels on the paper's display, Appendix
+        A), so that the bands are the same angles on any display. Static (it
+        sets kernel lengths): resolved when the Params are made, from a
+        concrete ``pixels_per_degree``.
     acuity_bands : int
         Number of Gaussian kernels (8: ``i = 0..7``). Static.
-    acuity_noise_cell : int
-        Spacing in space of the acuity noise, pixels (16, a quarter degree
-        on the paper's display). Static.
+    acuity_noise_cell : float
+        Spacing in space of the acuity noise, pixels. Default:
+        :data:`ACUITY_NOISE_CELL_DEG` times ``pixels_per_degree`` (16 pixels
+        on the paper's display), at least 1 pixel (finer noise is per-pixel
+        noise). Static, resolved like ``acuity_sigma0``.
     afterimage_blur : float
         Standard deviation of the blur of the ``B`` and ``C`` maps between
         frames, pixels (1; 0 for none; §2.4). Static. As in the paper it is
@@ -221,36 +246,36 @@ class Params(eqx.Module):
         at its initial state; local adaptation off uses Eq 7 instead of 12.
     """
 
-    gamma: jax.Array = eqx.field(default=0.455, converter=_array)
-    n: jax.Array = eqx.field(default=0.7, converter=_array)
-    a1: jax.Array = eqx.field(default=0.75, converter=_array)
-    a2: jax.Array = eqx.field(default=0.2, converter=_array)
-    b1: jax.Array = eqx.field(default=(1.2e-3, 1.4e-4, 5.5e-7), converter=_array)
-    b2: jax.Array = eqx.field(default=(6.9e-1, 1.4, 5.5), converter=_array)
-    c1: jax.Array = eqx.field(default=1.0, converter=_array)
-    c2: jax.Array = eqx.field(default=1.0, converter=_array)
-    j1: jax.Array = eqx.field(default=0.03, converter=_array)
-    j2: jax.Array = eqx.field(default=0.15, converter=_array)
-    m1: jax.Array = eqx.field(default=0.0, converter=_array)
-    m2: jax.Array = eqx.field(default=-2.0, converter=_array)
-    w_P: jax.Array = eqx.field(default=tuple(W_PHOTOPIC), converter=_array)
-    w_S: jax.Array = eqx.field(default=tuple(W_SCOTOPIC), converter=_array)
-    rho_step: jax.Array = eqx.field(default=0.286, converter=_array)
-    g: jax.Array = eqx.field(default=0.25, converter=_array)
-    H: jax.Array = eqx.field(default=tuple(map(tuple, H_AFTERIMAGE)), converter=_array)
-    adaptation_floor: jax.Array = eqx.field(default=100.0, converter=_array)
-    plateau_max: jax.Array = eqx.field(default=0.8, converter=_array)
-    plateau_sigma: jax.Array = eqx.field(default=1e4, converter=_array)
-    plateau_n: jax.Array = eqx.field(default=0.25, converter=_array)
-    calcium_epsilon: jax.Array = eqx.field(default=1e-3, converter=_array)
-    scotopic_colour: jax.Array = eqx.field(default=tuple(SCOTOPIC_COLOUR), converter=_array)
-    pixels_per_degree: jax.Array = eqx.field(default=PAPER_PIXELS_PER_DEGREE, converter=_array)
-    afterimage_falloff_deg: jax.Array = eqx.field(default=5.0, converter=_array)
-    acuity_noise_period: jax.Array = eqx.field(default=0.25, converter=_array)
-    levels: jax.Array = eqx.field(default=255.0, converter=_array)
-    acuity_sigma0: float = eqx.field(default=0.75, static=True)
+    gamma: jax.Array = eqx.field(default=0.455, converter=float_array)
+    n: jax.Array = eqx.field(default=0.7, converter=float_array)
+    a1: jax.Array = eqx.field(default=0.75, converter=float_array)
+    a2: jax.Array = eqx.field(default=0.2, converter=float_array)
+    b1: jax.Array = eqx.field(default=(1.2e-3, 1.4e-4, 5.5e-7), converter=float_array)
+    b2: jax.Array = eqx.field(default=(6.9e-1, 1.4, 5.5), converter=float_array)
+    c1: jax.Array = eqx.field(default=1.0, converter=float_array)
+    c2: jax.Array = eqx.field(default=1.0, converter=float_array)
+    j1: jax.Array = eqx.field(default=0.03, converter=float_array)
+    j2: jax.Array = eqx.field(default=0.15, converter=float_array)
+    m1: jax.Array = eqx.field(default=0.0, converter=float_array)
+    m2: jax.Array = eqx.field(default=-2.0, converter=float_array)
+    w_P: jax.Array = eqx.field(default=tuple(W_PHOTOPIC), converter=float_array)
+    w_S: jax.Array = eqx.field(default=tuple(W_SCOTOPIC), converter=float_array)
+    rho_step: jax.Array = eqx.field(default=0.286, converter=float_array)
+    g: jax.Array = eqx.field(default=0.25, converter=float_array)
+    H: jax.Array = eqx.field(default=tuple(map(tuple, H_AFTERIMAGE)), converter=float_array)
+    adaptation_floor: jax.Array = eqx.field(default=100.0, converter=float_array)
+    plateau_max: jax.Array = eqx.field(default=0.8, converter=float_array)
+    plateau_sigma: jax.Array = eqx.field(default=1e4, converter=float_array)
+    plateau_n: jax.Array = eqx.field(default=0.25, converter=float_array)
+    calcium_epsilon: jax.Array = eqx.field(default=1e-3, converter=float_array)
+    scotopic_colour: jax.Array = eqx.field(default=tuple(SCOTOPIC_COLOUR), converter=float_array)
+    pixels_per_degree: jax.Array = eqx.field(default=PAPER_PIXELS_PER_DEGREE, converter=float_array)
+    afterimage_falloff_deg: jax.Array = eqx.field(default=5.0, converter=float_array)
+    acuity_noise_period: jax.Array = eqx.field(default=0.25, converter=float_array)
+    levels: jax.Array = eqx.field(default=255.0, converter=float_array)
+    acuity_sigma0: float = eqx.field(default=None, static=True)
     acuity_bands: int = eqx.field(default=8, static=True)
-    acuity_noise_cell: int = eqx.field(default=16, static=True)
+    acuity_noise_cell: float = eqx.field(default=None, static=True)
     afterimage_blur: float = eqx.field(default=1.0, static=True)
     global_adaptation: bool = eqx.field(default=True, static=True)
     bleaching: bool = eqx.field(default=True, static=True)
@@ -260,14 +285,23 @@ class Params(eqx.Module):
     acuity: bool = eqx.field(default=True, static=True)
     dithering: bool = eqx.field(default=True, static=True)
 
+    def __post_init__(self):
+        # The acuity sizes in pixels, from their angles (static: kernel lengths).
+        if self.acuity_sigma0 is None or self.acuity_noise_cell is None:
+            ppd = _concrete_ppd(self.pixels_per_degree)
+            if self.acuity_sigma0 is None:
+                self.acuity_sigma0 = ACUITY_SIGMA0_DEG * ppd
+            if self.acuity_noise_cell is None:
+                self.acuity_noise_cell = max(1.0, ACUITY_NOISE_CELL_DEG * ppd)
+
     def __check_init__(self):
         if not (self.acuity_sigma0 > 0):
             raise ValueError(f"acuity_sigma0: expected > 0 pixels, got {self.acuity_sigma0!r}")
         if not (isinstance(self.acuity_bands, int) and self.acuity_bands >= 1):
             raise ValueError(f"acuity_bands: expected an int >= 1, got {self.acuity_bands!r}")
-        if not (isinstance(self.acuity_noise_cell, int) and self.acuity_noise_cell >= 1):
+        if not (self.acuity_noise_cell > 0 and math.isfinite(self.acuity_noise_cell)):
             raise ValueError(
-                f"acuity_noise_cell: expected an int >= 1 pixels, got {self.acuity_noise_cell!r}"
+                f"acuity_noise_cell: expected > 0 pixels, got {self.acuity_noise_cell!r}"
             )
         for name, shape in CHANNEL_FIELDS.items():
             value = getattr(self, name)
@@ -477,12 +511,13 @@ def local_rho(params, frame):
 
 
 def _interpolation_matrix(n, cell):
-    """Linear interpolation from a grid every ``cell`` pixels to ``n`` pixels,
-    with each row scaled so that interpolated unit-variance white noise keeps
-    unit variance: ``(n, n // cell + 2)``, NumPy (static)."""
+    """Linear interpolation from a grid every ``cell`` pixels (any positive
+    size) to ``n`` pixels, with each row scaled so that interpolated
+    unit-variance white noise keeps unit variance: ``(n, floor(n / cell) +
+    2)``, NumPy (static)."""
     pos = np.arange(n) / cell
     i, f = np.floor(pos).astype(int), pos - np.floor(pos)
-    A = np.zeros((n, n // cell + 2))
+    A = np.zeros((n, int(n // cell) + 2))
     A[np.arange(n), i] = 1.0 - f
     A[np.arange(n), i + 1] = f
     return A / np.sqrt((A**2).sum(axis=1, keepdims=True))

@@ -220,8 +220,17 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
     frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
     gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
     ppd = charts[0].pixels_per_degree
-    plain = jacobs2015.only(pixels_per_degree=ppd)
-    effects = jacobs2015.only("mesopic_colour", "acuity", pixels_per_degree=ppd)
+    # The charts stand in for the paper's display at a reduced size: the
+    # acuity loss keeps the paper's pixel sizes (Appendix A), not the angles
+    # of the reduced pixels, at which it would be finer than a pixel and the
+    # blur that the paper's observers saw would be lost.
+    paper = jacobs2015.PAPER_PIXELS_PER_DEGREE
+    sizes = {
+        "acuity_sigma0": jacobs2015.ACUITY_SIGMA0_DEG * paper,
+        "acuity_noise_cell": jacobs2015.ACUITY_NOISE_CELL_DEG * paper,
+    }
+    plain = jacobs2015.only(pixels_per_degree=ppd, **sizes)
+    effects = jacobs2015.only("mesopic_colour", "acuity", pixels_per_degree=ppd, **sizes)
 
     def render(params, batch):
         def one(f):
