@@ -47,16 +47,36 @@ def take_signals(handler):
     }
 
 
+def interrupt_behind(error):
+    """The interrupt that ``error`` was raised from, or None. Python wraps an
+    exception raised while a class is being made (``__set_name__``, as in
+    matplotlib's import) in a RuntimeError: a signal there must still end
+    the run as interrupted, not as a crash."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
 def run():
     """Take the signals, import the command line and run it
     (:func:`jaxadapt.cli.run`, which exits with the command's status)."""
     sys.unraisablehook = _unraisable
     taken = take_signals(_interrupt)
     try:
-        from jaxadapt import cli
+        try:
+            from jaxadapt import cli
 
-        if _SIGNALLED:  # an interrupt the import's garbage collection swallowed
-            raise KeyboardInterrupt(_SIGNALLED[0])
+            if _SIGNALLED:  # an interrupt the import's garbage collection swallowed
+                raise KeyboardInterrupt(_SIGNALLED[0])
+        except Exception as error:
+            interrupt = interrupt_behind(error)
+            if interrupt is None:
+                raise
+            raise interrupt from error
         cli.run()
     except KeyboardInterrupt as e:  # before the command line took the signals
         for s in taken:

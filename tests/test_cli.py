@@ -1366,6 +1366,33 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
     assert not out.exists()
 
 
+def test_an_interrupt_wrapped_by_python_is_still_an_interrupt(monkeypatch, capsys):
+    # A signal while matplotlib imports lands inside a class's __set_name__,
+    # which Python 3.11 re-raises as a RuntimeError: it printed a traceback
+    # and status 1 where the one line and 130 were due.
+    from jaxadapt.cli import _main
+
+    class Interrupted:
+        def __set_name__(self, owner, name):
+            raise KeyboardInterrupt(signal.SIGINT)
+
+    def command(argv):
+        type("Formatter", (), {"locs": Interrupted()})
+
+    monkeypatch.setattr(_main, "_command", command)
+    assert _main.main([]) == 128 + signal.SIGINT
+    assert capsys.readouterr().err.splitlines() == [
+        "jaxadapt: interrupted; nothing was written to --out"
+    ]
+
+    def crash(argv):
+        raise RuntimeError("not an interrupt")
+
+    monkeypatch.setattr(_main, "_command", crash)
+    with pytest.raises(RuntimeError, match="not an interrupt"):
+        _main.main([])
+
+
 def test_a_signal_after_the_command_leaves_its_status(tmp_path):
     # A signal as the program exits (here: as its command returns) reached
     # Python's exit handlers: 'Exception ignored in atexit callback' and a

@@ -7,7 +7,7 @@ import signal
 import sys
 
 from jaxadapt import runtime
-from jaxadapt._program import INTERRUPTED, take_signals
+from jaxadapt._program import INTERRUPTED, interrupt_behind, take_signals
 from jaxadapt.cli import psychometric, render
 from jaxadapt.cli._options import UsageError, _Parser, _version
 from jaxadapt.cli._output import _message
@@ -39,12 +39,22 @@ def main(argv=None):
     try:
         with _interruptible():
             return _command(argv)
+    except Exception as e:
+        interrupt = interrupt_behind(e)
+        if interrupt is None:
+            raise
+        return _interrupted(interrupt)
     except KeyboardInterrupt as e:
-        if _WRITTEN.is_set():  # only a handler restored after the run can raise here
-            return 0
-        with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
-            print(INTERRUPTED, file=sys.stderr)
-        return 128 + (e.args[0] if e.args else signal.SIGINT)
+        return _interrupted(e)
+
+
+def _interrupted(e):
+    """The status of a run interrupted by ``e`` (after its one line)."""
+    if _WRITTEN.is_set():  # only a handler restored after the run can raise here
+        return 0
+    with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
+        print(INTERRUPTED, file=sys.stderr)
+    return 128 + (e.args[0] if e.args else signal.SIGINT)
 
 
 def _command(argv):
