@@ -10,6 +10,7 @@ takes its signals before anything heavy is imported):
   simulated observers;
 - :mod:`~jaxadapt.fitting`: fits of any model's parameters to data;
 - :mod:`~jaxadapt.pipeline`: sources and streaming renders;
+- :mod:`~jaxadapt.viewer`: the live, gaze-contingent viewer (``jaxadapt view``);
 - :mod:`~jaxadapt.scenes`, :mod:`~jaxadapt.gaze`, :mod:`~jaxadapt.background`,
   :mod:`~jaxadapt.io`, :mod:`~jaxadapt.display`,
   :mod:`~jaxadapt.figures`, :mod:`~jaxadapt.color`,
@@ -33,6 +34,7 @@ __all__ = [
     "runtime",
     "scenes",
     "spatial",
+    "viewer",
 ]
 
 

@@ -8,6 +8,8 @@ is not finite (NaN) is a blink. :func:`fixation` is how the operators read a
 sample: clipped to the frame, a blink replaced by a fallback.
 """
 
+from pathlib import Path
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -88,7 +90,6 @@ def read_gaze_csv(path):
         naming the file and line.
     """
     import csv
-    from pathlib import Path
 
     path = Path(path)
     if path.is_dir():
@@ -157,6 +158,34 @@ def _gaze_columns(header, path):
             f"in {path}, got {','.join(header)!r}"
         )
     return columns
+
+
+def write_gaze_csv(path, times, points):
+    """Write a gaze recording that :func:`read_gaze_csv` reads back exactly:
+    a ``t,x,y`` header, then one row per sample (s, pixels; each number as
+    Python's shortest round-tripping form; a blink, NaN, as empty cells).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "gaze.csv"
+    >>> write_gaze_csv(path, [0.0, 0.5], [[1.5, 2.0], [np.nan, np.nan]])
+    >>> path.read_text().splitlines()
+    ['t,x,y', '0.0,1.5,2.0', '0.5,,']
+    """
+    times, points = np.asarray(times, dtype=np.float64), np.asarray(points, dtype=np.float64)
+    if times.ndim != 1 or points.shape != (times.size, 2):
+        raise ValueError(
+            f"times, points: expected sample times (N,) and gaze points (N, 2), got shapes "
+            f"{times.shape} and {points.shape}"
+        )
+    if not (np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)):
+        raise ValueError("times: expected finite sample times that increase")
+    rows = ["t,x,y"]
+    for t, (x, y) in zip(times.tolist(), points.tolist(), strict=True):
+        xy = f"{x!r},{y!r}" if np.isfinite(x) and np.isfinite(y) else ","
+        rows.append(f"{t!r},{xy}")
+    Path(path).write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 def recorded_gaze(times, points):

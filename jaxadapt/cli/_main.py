@@ -8,7 +8,7 @@ import sys
 
 from jaxadapt import runtime
 from jaxadapt._program import INTERRUPTED, interrupt_behind, take_signals
-from jaxadapt.cli import psychometric, render
+from jaxadapt.cli import psychometric, render, view
 from jaxadapt.cli._options import UsageError, _Parser, _version
 from jaxadapt.cli._output import _message
 from jaxadapt.cli._signals import _SIGNALLED, _WRITTEN, _interruptible
@@ -27,6 +27,7 @@ def build_parser():
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     render.add_parser(sub)
     psychometric.add_parser(sub)
+    view.add_parser(sub)
     return parser
 
 
@@ -79,6 +80,8 @@ def _command(argv):
             psychometric.simulate(args, console)
         elif args.command == "psychometric":
             psychometric.fit(args, console)
+        elif args.command == "view":
+            view.view(args, console)
     except MemoryError:
         print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)
         return 2

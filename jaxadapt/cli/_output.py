@@ -12,3 +12,23 @@ def _message(error):
     from jaxadapt.operators.checks import error_message
 
     return error_message(error)
+
+
+def _video_and_progress(stack, staging, formats, fps, encoding, console, task):
+    """Enter, on the exit stack ``stack``, the video writer of a render's
+    ``video.mp4`` (where ``formats`` holds mp4) and a progress bar on
+    ``console`` (only on a terminal) for ``task`` ``(description, total)``;
+    return ``send_video(frames)`` (a no-op without mp4) and ``advance(n)``."""
+    from rich.progress import Progress
+
+    from jaxadapt import io
+
+    send_video = (
+        stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
+        if "mp4" in formats
+        else (lambda frames: None)
+    )
+    bar = Progress(console=console, transient=True, disable=not console.is_terminal)
+    progress = stack.enter_context(bar)
+    task = progress.add_task(*task)
+    return send_video, lambda n: progress.advance(task, n)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxadapt.cli import _replay
 from jaxadapt.cli._options import (
     FPS_RANGE,
     MP4_MIN_FPS,
@@ -22,7 +23,7 @@ from jaxadapt.cli._options import (
     _seed,
     _size,
 )
-from jaxadapt.cli._output import _report
+from jaxadapt.cli._output import _report, _video_and_progress
 from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 
@@ -63,6 +64,18 @@ def _input_options():
                 metavar="FILE",
                 help="HDR input (EXR, Radiance HDR, PFM, float TIFF): one image, or the frames "
                 "of a sequence in order (e.g. a shell glob of a numbered sequence)",
+            ),
+        ),
+        (
+            ("--replay",),
+            dict(
+                type=Path,
+                default=None,
+                metavar="DIR",
+                help="instead of FILE or a scene, a session recorded by jaxadapt view --record "
+                "DIR: its frames exactly as the viewer showed them (png, mp4), a contact sheet, "
+                "diagnostics.csv (time, dt, gaze, adaptation) and its plot; the record fixes "
+                "the input, size, operator, effects and seed",
             ),
         ),
         (
@@ -532,10 +545,14 @@ def render(args, console):
     """``jaxadapt render``: check, stream the frames through the operator with
     their outputs written behind, then the diagnostics, sheet and plot."""
     import jax
-    from rich.progress import Progress
 
     from jaxadapt import figures, io, pipeline
 
+    if args.replay is not None:
+        options = (*_input_options(), *_operator_options(), *_adaptation_options())
+        _replay.check(args, (*options, *_OUTPUT_OPTIONS))
+        _replay.render(args, console)
+        return
     source, formats, fps = _prepared(args, console)
     op, params, plot, encoded = _operator(args, source, fps)
     # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
@@ -547,15 +564,9 @@ def render(args, console):
             frames_from = "FILE" if args.files else "--fps, --duration"
             _check_work(T, pipeline.frame_shape(source), formats, out, frames_from)
         with contextlib.ExitStack() as stack:
-            send_video = (
-                stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
-                if "mp4" in formats
-                else (lambda frames: None)
+            send_video, advance = _video_and_progress(
+                stack, staging, formats, fps, encoding, console, (f"rendering {source.name}", T)
             )
-            bar = Progress(console=console, transient=True, disable=not console.is_terminal)
-            progress = stack.enter_context(bar)
-            task = progress.add_task(f"rendering {source.name}", total=T)
-            advance = lambda n: progress.advance(task, n)  # noqa: E731
             write = _Outputs(
                 staging, formats, source, fps, (encoding, encoded), send_video, advance
             )

@@ -1,0 +1,145 @@
+"""``jaxadapt render --replay DIR``: the frames of a session recorded by
+``jaxadapt view --record DIR``, exactly as the viewer showed them, written
+as a render writes its outputs."""
+
+import contextlib
+import json
+
+import numpy as np
+
+from jaxadapt.cli._options import MP4_MIN_FPS, UsageError
+from jaxadapt.cli._output import _report, _video_and_progress
+from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
+
+#: The formats of a replay: the viewer's frames are 8-bit display pixels.
+REPLAY_FORMATS = ("png", "mp4")
+
+#: Frames of the replay shown on its contact sheet.
+CONTACT_FRAMES = 12
+
+
+#: The options of ``render`` that a replay takes (the others the record fixes).
+TAKEN = ("replay", "out", "formats", "allow_large")
+
+
+def check(args, options):
+    """Refuse with ``--replay`` the options that the record fixes: those of
+    ``options`` ((flags, keywords) pairs, as declared) not in :data:`TAKEN`
+    and not at their default, and the formats other than
+    :data:`REPLAY_FORMATS`."""
+    for flags, kwargs in options:
+        dest = kwargs.get("dest", flags[0].lstrip("-").replace("-", "_"))
+        if dest in TAKEN:
+            continue
+        value = getattr(args, dest)
+        if value != kwargs.get("default") and value != []:
+            name = "FILE" if dest == "files" else flags[0]
+            raise UsageError(
+                f"{name}: does not apply with --replay, whose record fixes the input, size, "
+                "operator, effects and seed"
+            )
+    other = [f for f in args.formats or () if f not in REPLAY_FORMATS]
+    if other:
+        raise UsageError(
+            f"--format: a replay writes the viewer's 8-bit frames (png, mp4), not {other[0]}"
+        )
+
+
+def _record(path):
+    """The spec and frame rows of the record in ``path``, checked."""
+    from jaxadapt.viewer import read_record
+
+    try:
+        spec, rows = read_record(path)
+    except FileNotFoundError as error:
+        raise UsageError(
+            f"--replay: expected a folder recorded by jaxadapt view --record, got {path}: "
+            f"{str(error).removeprefix('record: ')}"
+        ) from None
+    except (json.JSONDecodeError, KeyError) as error:
+        raise UsageError(
+            f"--replay: expected a record written by jaxadapt view, got {path} whose "
+            f"session.json or frames.csv does not read ({error})"
+        ) from None
+    if not rows:
+        raise UsageError(f"--replay: the record in {path} holds no frames")
+    return spec, rows
+
+
+def render(args, console):
+    """Replay the record of ``args.replay`` into ``args.out``: its frames
+    (png), a video (mp4) at the session's mean frame rate, a contact sheet,
+    ``diagnostics.csv`` (each frame's time, ``dt``, gaze, input frame and
+    adaptation luminance) and its plot. Each frame's digest is checked
+    against the record's; a mismatch is warned, with the frames that differ.
+    """
+    from jaxadapt import figures, io, pipeline, viewer
+
+    path = args.replay
+    spec, rows = _record(path)
+    formats = args.formats or list(REPLAY_FORMATS)
+    if not spec.get("complete", False):
+        console.print(
+            f"warning: --replay: the session in {path} did not end cleanly; replaying the "
+            f"{len(rows)} frames it recorded",
+            markup=False,
+        )
+    dt = np.array([float(r["dt"]) for r in rows])
+    fps = len(dt) / float(dt.sum())
+    if "mp4" in formats and fps < MP4_MIN_FPS:
+        raise UsageError(
+            f"--replay: a video (--format mp4, a default) needs at least {MP4_MIN_FPS:g} "
+            f"frames/s, the session ran at {fps:g}; choose --format png"
+        )
+    encoding = "gamma" if spec.get("operator", "jacobs2015") == "jacobs2015" else "srgb"
+    digits = max(5, len(str(len(rows) - 1)))
+    shown = set(np.linspace(0, len(rows) - 1, min(CONTACT_FRAMES, len(rows))).round().astype(int))
+    contact, labels, table, differ = [], [], [], []
+    with _staged(args.out, console, RENDER_OUTPUTS, keep=[path]) as staging:
+        with contextlib.ExitStack() as stack:
+            send_video, advance = _video_and_progress(
+                stack, staging, formats, fps, encoding, console, (f"replaying {path}", len(rows))
+            )
+
+            def write(frame):
+                if "png" in formats:
+                    name = f"frame_{frame.index:0{digits}d}.png"
+                    io.write_image(staging / name, frame.pixels, encoding)
+                send_video(frame.pixels[None])
+                advance(1)
+
+            submit = stack.enter_context(pipeline.behind(write))
+            clock = 0.0
+            for frame, row in zip(viewer.replay(path), rows, strict=True):
+                if frame.digest != row["digest"]:
+                    differ.append(frame.index)
+                if frame.index in shown:
+                    contact.append(figures.shrink(frame.pixels).round().astype(np.uint8))
+                    labels.append(f"{clock:.3g} s")
+                table.append((clock, frame.dt, *frame.gaze, frame.scene_index, frame.adaptation))
+                clock += frame.dt
+                submit(frame)
+        columns = ("t", "dt", "gaze_x", "gaze_y", "scene_index", "adaptation")
+        table = dict(zip(columns, np.array(table, np.float64).T, strict=True))
+        io.write_columns(staging / "diagnostics.csv", table)
+        sheet = figures.contact_sheet(np.stack(contact), labels=labels)
+        io.write_image(staging / "contact_sheet.png", sheet, encoding)
+        figures.plot_columns(
+            staging / "adaptation.png",
+            {k: table[k] for k in ("t", "adaptation", "gaze_x", "gaze_y")},
+            title=f"replay of {path}: {spec.get('operator', 'jacobs2015')}",
+            units={"adaptation": "cd/m2", "gaze_x": "px", "gaze_y": "px"},
+        )
+        count = len(list(staging.iterdir()))
+    if differ:
+        console.print(
+            f"warning: --replay: {len(differ)} of {len(rows)} frames differ from those the "
+            f"viewer showed (the first: frame {differ[0]}); a record of another jaxadapt "
+            f"version ({spec.get('jaxadapt', 'unknown')}) or machine can round a dithered "
+            "pixel the other way",
+            markup=False,
+        )
+    _report(
+        f"wrote {count} files to {args.out}/ for the {len(rows)} frames of {path} "
+        f"({'all' if not differ else len(rows) - len(differ)} as shown, at {fps:.3g} frames/s)"
+    )

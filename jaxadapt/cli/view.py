@@ -1,0 +1,206 @@
+"""``jaxadapt view``: the live, gaze-contingent viewer in the browser
+(:mod:`jaxadapt.viewer`)."""
+
+import argparse
+from pathlib import Path
+
+from jaxadapt.cli._options import (
+    UsageError,
+    _folder,
+    _frame_rate,
+    _pixels_per_degree,
+    _positive,
+    _seed,
+    _size,
+)
+from jaxadapt.cli._output import _report
+
+#: The operators the viewer runs (those with a per-frame ``step`` and gaze).
+VIEW_OPERATORS = ("jacobs2015", "pattanaik2000")
+
+
+def _port(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(
+            f"expected a port from 0 to 65535 (0: any free one), got {text!r}"
+        )
+    return value
+
+
+def add_parser(sub):
+    """Declare ``jaxadapt view`` and its options on the subparsers ``sub``."""
+    view = sub.add_parser(
+        "view",
+        help="look around an HDR scene live in the browser, the pointer as the gaze",
+        description="Serve a page that shows the operator's frames live and takes the "
+        "pointer over them (or an eye tracker's samples sent to /gaze) as the gaze. The "
+        "simulation advances by the wall-clock time between frames, so adaptation and "
+        "afterimages keep their real time course. Ctrl-C stops it.",
+    )
+    for flags, kwargs in (*_input_options(), *_server_options()):
+        view.add_argument(*flags, **kwargs)
+
+
+# The options as (flags, add_argument keywords), in the order --help lists them.
+
+
+def _input_options():
+    """The options of the input, the operator and its effects."""
+    from jaxadapt.operators.jacobs2015 import EFFECTS
+    from jaxadapt.scenes import SCENES
+    from jaxadapt.viewer import DEFAULT_SCENE, DEFAULT_SIZE
+
+    return (
+        (("files",), dict(nargs="*", metavar="FILE", help="HDR input (EXR, HDR, PFM, float "
+            "TIFF): one image, or a sequence played in a loop")),
+        (("--scene",), dict(choices=sorted(SCENES), default=None, help="built-in scene when "
+            f"no FILE is given (default: {DEFAULT_SCENE})")),
+        (("--operator",), dict(choices=VIEW_OPERATORS, default="jacobs2015",
+            help="the operator (default: jacobs2015)")),
+        (("--size",), dict(type=_size, default=DEFAULT_SIZE, metavar="WxH", help="largest "
+            "frame size rendered (default: {}x{}, which keeps 30 frames/s with jacobs2015 on "
+            "a 2-core CPU); FILEs are shrunk to fit, aspect kept".format(*DEFAULT_SIZE))),
+        (("--multiplier",), dict(type=_positive, default=1.0, help="multiply input values by "
+            "this to calibrate them to cd/m2 (default: 1)")),
+        (("--fps",), dict(type=_frame_rate, default=None, help="frame rate of a FILE sequence "
+            "(default: the first file's, else 30)")),
+        (("--pixels-per-degree",), dict(type=_pixels_per_degree, default=None,
+            help="resolution of the frames at the eye (default: the scene's own at --size; "
+            "for FILEs 30 at their own size)")),
+        (("--seed",), dict(type=_seed, default=None, help="seed of jacobs2015's random draws "
+            "(acuity noise, dithering); default 0")),
+        (("--off",), dict(action="append", choices=EFFECTS, default=[], metavar="EFFECT",
+            help="start with this jacobs2015 effect off, repeatable "
+            f"({', '.join(EFFECTS)}); the page switches them")),
+    )  # fmt: skip
+
+
+def _server_options():
+    """The options of the server and the record."""
+    return (
+        (("--host",), dict(default="127.0.0.1", help="address to listen on (default: "
+            "127.0.0.1, this machine only); any other requires the token printed at start")),
+        (("--port",), dict(type=_port, default=8765, help="port (default: 8765; 0: any free "
+            "one)")),
+        (("--no-browser",), dict(action="store_true", help="do not open the page in a browser")),
+        (("--record",), dict(type=_folder, default=None, metavar="DIR", help="record the "
+            "session into DIR: session.json, frames.csv (t, dt and gaze of every frame) and "
+            "gaze.csv (what render --gaze reads)")),
+    )  # fmt: skip
+
+
+def _spec(args):
+    """The session's spec (:class:`jaxadapt.viewer.Session`) of the checked options."""
+    if args.files and args.scene is not None:
+        raise UsageError("--scene: applies when no FILE is given")
+    if not args.files and args.fps is not None:
+        raise UsageError("--fps: applies to FILE input, not to a built-in scene")
+    if args.operator != "jacobs2015":
+        for option, value in (("--seed", args.seed), ("--off", args.off)):
+            if value:
+                raise UsageError(f"{option}: applies to --operator jacobs2015, not {args.operator}")
+    from jaxadapt.operators.jacobs2015 import EFFECTS
+
+    spec = {
+        "operator": args.operator,
+        "size": list(args.size),
+        "multiplier": args.multiplier,
+        "seed": args.seed or 0,
+    }
+    if args.files:
+        missing = [f for f in args.files if not Path(f).is_file()]
+        if missing:
+            raise FileNotFoundError(f"FILE: {missing[0]}: no such file")
+        spec |= {"files": [str(Path(f).resolve()) for f in args.files], "fps": args.fps}
+    else:
+        from jaxadapt.viewer import DEFAULT_SCENE
+
+        spec["scene"] = args.scene or DEFAULT_SCENE
+    if args.pixels_per_degree is not None:
+        spec["pixels_per_degree"] = args.pixels_per_degree
+    if args.operator == "jacobs2015":
+        spec["effects"] = [e for e in EFFECTS if e not in args.off]
+    return spec
+
+
+def view(args, console):
+    """``jaxadapt view``: build the session, compile its step, then serve
+    until a signal (Ctrl-C) stops it; the record is complete on return."""
+    import asyncio
+    import secrets
+
+    from jaxadapt.viewer import Recorder, Session
+    from jaxadapt.viewer._server import is_loopback
+
+    spec = _spec(args)
+    try:
+        import aiohttp  # noqa: F401
+        import PIL  # noqa: F401
+    except ImportError as error:
+        raise UsageError(
+            f"view: needs {error.name}, of the viewer extra: pip install 'jaxadapt[viewer]'"
+        ) from None
+    if args.record is not None and (args.record / "session.json").exists():
+        raise UsageError(
+            f"--record: {args.record} holds a recorded session already (session.json); "
+            "choose another folder"
+        )
+    try:
+        session = Session(spec)
+    except MemoryError:
+        raise UsageError("out of memory; try a smaller --size") from None
+    token = None if is_loopback(args.host) else secrets.token_urlsafe(16)
+    record = None if args.record is None else (lambda: Recorder(args.record, session.spec))
+    asyncio.run(_serve(session, args, token, record, console))
+
+
+async def _serve(session, args, token, record, console):
+    import asyncio
+    import webbrowser
+
+    from jaxadapt._program import SIGNALS
+    from jaxadapt.viewer import Server
+
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for signum in SIGNALS:  # from here a signal stops the server cleanly
+        loop.add_signal_handler(signum, stop.set)
+    server = Server(session, args.host, args.port, token)
+    W, H = session.shape[1], session.shape[0]
+    console.print(f"compiling {args.operator} for {W}x{H} frames")
+    try:
+        url = await server.start(record, prepare=session.warm)
+    except OSError as error:
+        if error.filename is not None:  # the record's folder, not the address
+            raise
+        raise UsageError(
+            f"--host, --port: cannot listen on {args.host} port {args.port}: "
+            f"{error.strerror or error}"
+        ) from None
+    finally:
+        if server.sim.ident is None:  # not started: the handlers go with the error
+            for signum in SIGNALS:
+                loop.remove_signal_handler(signum)
+    _report(f"jaxadapt view: serving {url} (Ctrl-C stops)")
+    if not args.no_browser:
+        loop.run_in_executor(None, webbrowser.open, url)
+    try:
+        while not stop.is_set() and server.sim.is_alive():
+            try:
+                await asyncio.wait_for(stop.wait(), 0.5)
+            except asyncio.TimeoutError:
+                pass
+    finally:
+        await server.close()
+        for signum in SIGNALS:
+            loop.remove_signal_handler(signum)
+    if isinstance(server.sim.error, MemoryError):
+        raise UsageError("out of memory; try a smaller --size")
+    if server.sim.error is not None:
+        raise server.sim.error
+    if args.record is not None:
+        _report(f"recorded {server.sim.recorder.count} frames in {args.record}/")

@@ -1,0 +1,470 @@
+"""The live viewer's server: one page, its frames over a WebSocket, the gaze
+from the page's pointer or an external tracker, and ``/state``.
+
+The simulation runs in a thread of its own (:class:`Simulation`) and
+computes a frame only when a page has room for one (at most
+:data:`WINDOW` frames unacknowledged): a page that falls behind skips
+frames rather than queueing them, and the gaze a frame uses is never older
+than the frames in flight.
+"""
+
+import asyncio
+import collections
+import hmac
+import importlib.resources
+import io
+import ipaddress
+import json
+import math
+import struct
+import threading
+import time
+
+from jaxadapt.viewer._session import FIRST_DT, MAX_DT
+
+#: Frames a page may hold unacknowledged (sent, not yet drawn).
+WINDOW = 2
+#: Most pages served at once; more are refused with a message.
+MAX_CLIENTS = 8
+#: Largest message a client may send, bytes.
+MAX_MESSAGE = 2**16
+#: Highest frame rate computed, frames/s.
+MAX_FPS = 60.0
+#: JPEG quality of the frames sent (Pillow's scale, 1-95).
+JPEG_QUALITY = 85
+#: The page and its script, served from the package (never from a request's path).
+ASSETS = {"/": ("index.html", "text/html"), "/viewer.js": ("viewer.js", "text/javascript")}
+
+
+def encode_jpeg(pixels, quality=JPEG_QUALITY):
+    """JPEG bytes of 8-bit RGB ``pixels (H, W, 3)`` (Pillow)."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(pixels).save(buffer, "JPEG", quality=quality)
+    return buffer.getvalue()
+
+
+def frame_message(header, jpeg):
+    """A frame as one binary message: the header's JSON length (4 bytes,
+    big-endian), the header (UTF-8 JSON), then the JPEG."""
+    text = json.dumps(header).encode()
+    return struct.pack(">I", len(text)) + text + jpeg
+
+
+def parse_gaze(sample, shape):
+    """The gaze point ``(x, y)`` of a sample ``{"x": px, "y": px}`` on frames
+    of ``shape (H, W)``, and a warning or None: ``x`` and ``y`` both null
+    (or NaN) are a blink, ``(nan, nan)``; a point off the frame is clipped to
+    its edge (the operators' reading), with a warning. ValueError for
+    anything else, naming what was expected."""
+    if not isinstance(sample, dict) or not {"x", "y"} <= set(sample):
+        raise ValueError(f'expected an object {{"t": s, "x": px, "y": px}}, got {sample!r:.80}')
+    x, y = sample["x"], sample["y"]
+    if x is None and y is None:
+        return (math.nan, math.nan), None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (x, y)):
+        raise ValueError(f"x, y: expected numbers (pixels) or both null, got {x!r:.30}, {y!r:.30}")
+    try:
+        x, y = float(x), float(y)
+    except OverflowError:  # an integer beyond float64
+        x = y = math.inf
+    if math.isnan(x) and math.isnan(y):
+        return (math.nan, math.nan), None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ValueError(f"x, y: expected finite pixels or both NaN (a blink), got {x}, {y}")
+    H, W = shape
+    clipped = (min(max(x, 0.0), W - 1.0), min(max(y, 0.0), H - 1.0))
+    if clipped != (x, y):
+        return clipped, (
+            f"x, y: ({x:g}, {y:g}) is off the {W}x{H} frame; taken as its nearest point "
+            f"({clipped[0]:g}, {clipped[1]:g})"
+        )
+    return (x, y), None
+
+
+class Simulation(threading.Thread):
+    """The thread that advances a :class:`~jaxadapt.viewer.Session`: it
+    waits until a page wants a frame, steps the session by the time since
+    the last frame (clamped to :data:`MAX_DT`; :data:`FIRST_DT` for the
+    first one and after a pause), encodes the frame and hands it to
+    ``publish(header, jpeg)``; ``recorder`` (optional) writes each frame."""
+
+    def __init__(self, session, publish, recorder=None, max_fps=MAX_FPS):
+        super().__init__(name="jaxadapt-viewer-simulation", daemon=True)
+        self.session, self.publish, self.recorder = session, publish, recorder
+        self.min_interval = 1.0 / max_fps
+        self.cond = threading.Condition()
+        self.wanted = self.paused = self.stopping = False
+        self.commands = []
+        self.gaze, self.gaze_id = (math.nan, math.nan), None
+        self.times = collections.deque()
+        self.last = None
+        self.error = None
+
+    def want(self):
+        """A page has room for a frame."""
+        with self.cond:
+            self.wanted = True
+            self.cond.notify()
+
+    def command(self, *command):
+        """Queue ``("reset",)``, ``("pause", bool)`` or ``("effect", name, on)``
+        for the next frame (commands apply between frames, in order)."""
+        with self.cond:
+            if command[0] == "pause":
+                self.paused = command[1]
+                self.last = None
+            else:
+                self.commands.append(command)
+            self.cond.notify()
+
+    def look(self, gaze, gaze_id=None):
+        """Take ``gaze`` (x, y pixels; NaN a blink) as the gaze of the next frame."""
+        with self.cond:
+            self.gaze, self.gaze_id = gaze, gaze_id
+
+    def stop(self):
+        with self.cond:
+            self.stopping = True
+            self.cond.notify()
+
+    def fps(self):
+        """Frames computed over the last second."""
+        now = time.monotonic()
+        return sum(1 for t in list(self.times) if now - t <= 1.0)
+
+    def run(self):
+        try:
+            while self._next():
+                pass
+        except Exception as error:  # said by the server, which stops
+            self.error = error
+        finally:
+            if self.recorder is not None:
+                self.recorder.close()
+
+    def _next(self):
+        with self.cond:
+            self.cond.wait_for(lambda: self.stopping or (self.wanted and not self.paused))
+            if self.stopping:
+                return False
+            self.wanted = False
+            commands, self.commands = self.commands, []
+            gaze, gaze_id, last = self.gaze, self.gaze_id, self.last
+        for command in commands:
+            if command[0] == "reset":
+                self.session.reset()
+            else:
+                self.session.toggle(*command[1:])
+        now = time.monotonic()
+        if last is not None and now - last < self.min_interval:
+            time.sleep(self.min_interval - (now - last))
+            now = time.monotonic()
+        dt = FIRST_DT if last is None else min(now - last, MAX_DT)
+        with self.cond:
+            self.last = now
+        frame = self.session.advance(dt, gaze)
+        if self.recorder is not None:
+            self.recorder.write(frame)
+        self.times.append(time.monotonic())
+        while self.times and self.times[-1] - self.times[0] > 2.0:
+            self.times.popleft()
+        H, W = frame.pixels.shape[:2]
+        header = {
+            "frame": frame.index,
+            "t": frame.t,
+            "dt": frame.dt,
+            "gaze": [None if math.isnan(v) else v for v in frame.gaze],
+            "gaze_id": gaze_id,
+            "adaptation": frame.adaptation,
+            "fps": self.fps(),
+            "size": [W, H],
+            "effects": sorted(self.session.effects),
+            "digest": frame.digest,
+            "sent": time.time(),
+        }
+        self.publish(header, encode_jpeg(frame.pixels))
+        return True
+
+
+class Client:
+    """A page connected to ``/ws``: its socket and frames in flight."""
+
+    def __init__(self, ws):
+        self.ws, self.unacked = ws, 0
+
+
+class Server:
+    """The viewer's web application around a :class:`Simulation`.
+
+    Parameters
+    ----------
+    session : Session
+    host : str
+        Address to bind; a non-loopback one requires ``token`` in every URL.
+    port : int
+        Port (0: any free one).
+    token : str or None
+        Secret every request must carry as ``?token=``; None on loopback.
+    """
+
+    def __init__(self, session, host="127.0.0.1", port=0, token=None):
+        self.session, self.host, self.port, self.token = session, host, port, token
+        self.clients, self.trackers = set(), set()
+        self.sim = Simulation(session, self._publish_threadsafe)
+        self.loop = self.runner = None
+        self.assets = {
+            route: (importlib.resources.files(__package__).joinpath("static", name).read_bytes(), t)
+            for route, (name, t) in ASSETS.items()
+        }
+
+    def app(self):
+        from aiohttp import web  # (the viewer extra: the package imports without it)
+
+        guard = web.middleware(lambda request, handler: self._guard(request, handler))
+        app = web.Application(middlewares=[guard], client_max_size=MAX_MESSAGE)
+        app.router.add_get("/", self._asset)
+        app.router.add_get("/viewer.js", self._asset)
+        app.router.add_get("/state", self._state)
+        app.router.add_get("/ws", self._page_socket)
+        app.router.add_get("/gaze", self._gaze_socket)
+        return app
+
+    async def start(self, record=None, prepare=None):
+        """Bind, run ``prepare()`` (in a thread: e.g. compiling the step),
+        then start simulating; return the page's URL. ``record()``, once
+        bound, makes the :class:`Recorder` of the frames."""
+        from aiohttp import web
+
+        self.loop = asyncio.get_running_loop()
+        self.runner = web.AppRunner(self.app(), access_log=None, handle_signals=False)
+        await self.runner.setup()
+        try:
+            await web.TCPSite(self.runner, self.host, self.port).start()
+            self.port = self.runner.addresses[0][1]
+            if prepare is not None:
+                await asyncio.to_thread(prepare)
+            self.sim.recorder = None if record is None else record()
+        except BaseException:
+            await self.runner.cleanup()
+            raise
+        self.sim.start()
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        query = f"?token={self.token}" if self.token else ""
+        return f"http://{host}:{self.port}/{query}"
+
+    async def close(self):
+        """Close the sockets, stop the simulation (its record completed) and unbind."""
+        for ws in [c.ws for c in self.clients] + list(self.trackers):
+            await ws.close(code=1001, message=b"server stopped")
+        self.sim.stop()
+        await asyncio.to_thread(self.sim.join)
+        await self.runner.cleanup()
+
+    # -- requests ---------------------------------------------------------
+
+    async def _guard(self, request, handler):
+        """Refuse requests without the token, for another host (DNS
+        rebinding) or from another origin's page."""
+        from aiohttp import web
+
+        given = request.query.get("token", "").encode()
+        if self.token and not hmac.compare_digest(given, self.token.encode()):
+            return web.Response(status=403, text="jaxadapt view: missing or wrong token\n")
+        if not self.token and request.host not in self._hosts():
+            return web.Response(status=403, text=f"jaxadapt view: unexpected Host {request.host}\n")
+        origin = request.headers.get("Origin")
+        if origin is not None and origin not in (f"http://{h}" for h in self._hosts(request)):
+            return web.Response(status=403, text=f"jaxadapt view: refused origin {origin}\n")
+        return await handler(request)
+
+    def _hosts(self, request=None):
+        names = {"127.0.0.1", "localhost", "[::1]", self.host}
+        if self.token and request is not None:  # any name of the machine, the token guards
+            names.add(request.host.rsplit(":", 1)[0])
+        return {f"{n}:{self.port}" for n in names}
+
+    async def _asset(self, request):
+        from aiohttp import web
+
+        body, content_type = self.assets[request.path]
+        return web.Response(body=body, content_type=content_type)
+
+    async def _state(self, request):
+        from aiohttp import web
+
+        sim = self.sim
+        with sim.cond:
+            gaze, paused = sim.gaze, sim.paused
+        H, W = self.session.shape
+        return web.json_response(
+            {
+                "frame": self.session.index,
+                "fps": sim.fps(),
+                "gaze": [None if math.isnan(v) else v for v in gaze],
+                "adaptation": _number(self.session.adaptation()),
+                "size": [W, H],
+                "t": self.session.t,
+                "paused": paused,
+                "operator": self.session.operator,
+                "effects": sorted(self.session.effects),
+                "available_effects": list(self.session.available_effects),
+                "clients": len(self.clients),
+                "trackers": len(self.trackers),
+            }
+        )
+
+    async def _page_socket(self, request):
+        from aiohttp import WSMsgType, web
+
+        ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_MESSAGE, heartbeat=20)
+        await ws.prepare(request)
+        if len(self.clients) >= MAX_CLIENTS:
+            await ws.send_json({"type": "error", "message": f"at most {MAX_CLIENTS} pages"})
+            await ws.close(code=1013, message=b"too many pages")
+            return ws
+        client = Client(ws)
+        self.clients.add(client)
+        H, W = self.session.shape
+        await ws.send_json(
+            {
+                "type": "hello",
+                "size": [W, H],
+                "operator": self.session.operator,
+                "effects": sorted(self.session.effects),
+                "available_effects": list(self.session.available_effects),
+            }
+        )
+        self.sim.want()
+        try:
+            async for msg in ws:
+                if msg.type == WSMsgType.TEXT:
+                    await self._page_message(client, msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    await _error(ws, "expected JSON text messages, got binary data")
+        finally:
+            self.clients.discard(client)
+        return ws
+
+    async def _page_message(self, client, text):
+        """Act on one message of a page: ``ack``, ``gaze``, ``pause``,
+        ``reset`` or ``effect``; an error message for anything else."""
+        try:
+            message = _json(text)
+            kind = message.get("type") if isinstance(message, dict) else None
+            if kind == "ack":
+                client.unacked = max(0, client.unacked - 1)
+                self.sim.want()
+            elif kind == "gaze":
+                if self.trackers:  # an external tracker drives the gaze
+                    return
+                gaze, warning = parse_gaze(message, self.session.shape)
+                self.sim.look(gaze, message.get("id"))
+                if warning:
+                    await _error(client.ws, warning, "warning")
+            elif kind == "pause":
+                self.sim.command("pause", bool(message.get("paused", True)))
+                self.sim.want()
+            elif kind == "reset":
+                self.sim.command("reset")
+            elif kind == "effect":
+                name, on = message.get("name"), bool(message.get("on"))
+                if name not in self.session.available_effects:
+                    raise ValueError(
+                        f"effect: expected one of {list(self.session.available_effects)}, "
+                        f"got {name!r:.40}"
+                    )
+                self.sim.command("effect", name, on)
+            else:
+                raise ValueError(
+                    "expected a message of type ack, gaze, pause, reset or effect, "
+                    f"got {text!r:.80}"
+                )
+        except ValueError as error:  # json.JSONDecodeError is one
+            await _error(client.ws, str(error))
+
+    async def _gaze_socket(self, request):
+        """``/gaze``: JSON lines ``{"t": s, "x": px, "y": px}`` from a tracker."""
+        from aiohttp import WSMsgType, web
+
+        ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_MESSAGE, heartbeat=20)
+        await ws.prepare(request)
+        self.trackers.add(ws)
+        try:
+            async for msg in ws:
+                if msg.type != WSMsgType.TEXT:
+                    await _error(ws, "expected JSON lines of text, got binary data")
+                    continue
+                for line in filter(str.strip, msg.data.splitlines()):
+                    await self._tracker_line(ws, line)
+        finally:
+            self.trackers.discard(ws)
+        return ws
+
+    async def _tracker_line(self, ws, line):
+        try:
+            sample = _json(line)
+            gaze, warning = parse_gaze(sample, self.session.shape)
+            t = sample.get("t")
+            if t is not None and not (isinstance(t, (int, float)) and math.isfinite(t)):
+                raise ValueError(f"t: expected a time in seconds, got {t!r:.30}")
+        except ValueError as error:
+            await _error(ws, f"{error} (line {line!r:.80})")
+            return
+        self.sim.look(gaze, sample.get("id"))
+        if warning:
+            await _error(ws, warning, "warning")
+
+    # -- frames -----------------------------------------------------------
+
+    def _publish_threadsafe(self, header, jpeg):
+        self.loop.call_soon_threadsafe(self._publish, frame_message(header, jpeg))
+
+    def _publish(self, message):
+        """Send a frame to every page with room for it; the others skip it."""
+        for client in list(self.clients):
+            if client.unacked < WINDOW and not client.ws.closed:
+                client.unacked += 1
+                self.loop.create_task(_send(client.ws, message))
+        if any(c.unacked < WINDOW for c in self.clients):
+            self.sim.want()
+
+
+async def _send(ws, message):
+    try:
+        await ws.send_bytes(message)
+    except (ConnectionError, RuntimeError):  # the page went away mid-frame
+        pass
+
+
+async def _error(ws, message, kind="error"):
+    """Tell a client what was wrong with its message (the socket stays open)."""
+    if not ws.closed:
+        try:
+            await ws.send_json({"type": kind, "message": message})
+        except (ConnectionError, RuntimeError):
+            pass
+
+
+def _json(text):
+    """The JSON value of ``text``; a one-line ValueError where it is not JSON."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"expected a JSON object, got {text!r:.80} ({error})") from None
+
+
+def _number(value):
+    """``value`` for JSON: None for NaN (no frame yet)."""
+    return None if math.isnan(value) else value
+
+
+def is_loopback(host):
+    """Whether ``host`` (an address or ``localhost``) is this machine only."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

@@ -1,0 +1,359 @@
+"""The live viewer's simulation: an operator's state advanced frame by frame
+by measured time, its frames as 8-bit pixels, and its record.
+
+A :class:`Session` is built from a *spec* (a dict of the command's choices:
+scene or files, size, operator, seed, ...), so that a recorded session
+(``session.json``) rebuilds the same one and :func:`replay` gives the same
+frames from the recorded ``dt`` and gaze of each frame.
+"""
+
+import csv
+import hashlib
+import json
+import math
+from collections import OrderedDict
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+#: Frame size ``(W, H)`` the viewer renders at by default, pixels: the
+#: largest 16:9 size at which jacobs2015 keeps 30 frames/s on a 2-core CPU
+#: with the browser beside it (``benchmarks/bench_viewer.py``).
+DEFAULT_SIZE = (384, 216)
+#: Longest time a frame may advance the simulation, s: a browser tab that
+#: sleeps (and stops asking for frames) resumes where it left, not after
+#: the minutes it slept.
+MAX_DT = 0.25
+#: The first frame's duration, and that after a pause, s (no frame before it to time).
+FIRST_DT = 1 / 30
+#: The scene shown when neither FILE nor ``--scene`` is given.
+DEFAULT_SCENE = "patches"
+#: Bytes of input frames kept decoded (a looped sequence is read once).
+FRAME_CACHE_BYTES = 256 * 2**20
+#: The columns of ``frames.csv`` in a record.
+FRAME_COLUMNS = ("frame", "t", "dt", "x", "y", "scene_index", "effects", "reset", "digest")
+
+
+class Frame(NamedTuple):
+    """One frame the viewer showed.
+
+    Attributes
+    ----------
+    index : int
+        Frame number since the session started.
+    t : float
+        Session time at which the frame is shown, s (the sum of the ``dt`` before it).
+    dt : float
+        How long the frame advanced the state, s.
+    gaze : (float, float)
+        Gaze sample used ``(x, y)``, frame pixels (NaN: a blink).
+    scene_index : int
+        Index of the input frame (the scene or files loop).
+    effects : str
+        Effects on, joined by ``+`` (``-`` for none; ``""`` for pattanaik2000).
+    reset : bool
+        Whether the state was re-initialised before this frame.
+    pixels : numpy array, (H, W, 3) uint8
+        The display frame.
+    adaptation : float
+        Adaptation luminance after the frame, cd/m2.
+    """
+
+    index: int
+    t: float
+    dt: float
+    gaze: tuple
+    scene_index: int
+    effects: str
+    reset: bool
+    pixels: np.ndarray
+    adaptation: float
+
+    @property
+    def digest(self):
+        """First 16 hex digits of the SHA-256 of the frame's pixels."""
+        return hashlib.sha256(self.pixels.tobytes()).hexdigest()[:16]
+
+
+def open_source(spec):
+    """The :class:`jaxadapt.pipeline.Source` of ``spec`` at its size, and its
+    pixels per degree: a built-in scene made at ``spec["size"]``, or files
+    shrunk to fit in it (aspect kept)."""
+    from jaxadapt import pipeline
+    from jaxadapt.scenes import SCENES
+
+    W, H = spec["size"]
+    if not spec.get("files"):
+        scene = SCENES[spec.get("scene") or DEFAULT_SCENE](width=W, height=H)
+        source = pipeline.from_scene(scene, spec.get("multiplier", 1.0))
+        return source, source.pixels_per_degree
+    files = spec["files"]
+    source = pipeline.from_files(files, spec.get("fps"), spec.get("multiplier", 1.0))
+    h, w = pipeline.frame_shape(source)
+    scale = min(1.0, W / w, H / h)
+    size = (max(2, round(h * scale)), max(2, round(w * scale)))
+    if size != (h, w):
+        source = source._replace(frames=_shrunk(source.frames, size), shape=size)
+    return source, source.pixels_per_degree * size[1] / w
+
+
+def _shrunk(frames, size):
+    """``frames(idx)`` shrunk to ``size (H, W)`` in linear light (antialiased)."""
+    import jax
+    import jax.numpy as jnp
+
+    resize = jax.jit(
+        lambda f: jax.image.resize(f, (len(f), *size, 3), "linear", antialias=True),
+    )
+    return lambda idx: np.maximum(np.asarray(resize(jnp.asarray(frames(idx)))), 0.0)
+
+
+class Session:
+    """A viewer's simulation, advanced one frame at a time by :meth:`advance`.
+
+    Parameters
+    ----------
+    spec : dict
+        ``scene`` (a name of :data:`jaxadapt.scenes.SCENES`) or ``files``
+        (HDR paths; ``fps``, frames/s, optional), ``size`` ``(W, H)``
+        pixels, and optionally ``multiplier``, ``operator`` (jacobs2015 or
+        pattanaik2000), ``seed``, ``pixels_per_degree`` and ``effects``
+        (names of :data:`jaxadapt.operators.jacobs2015.EFFECTS` on).
+    """
+
+    def __init__(self, spec):
+        import jax
+
+        from jaxadapt.operators import OPERATORS, jacobs2015
+
+        self.spec = dict(spec)
+        self.operator = self.spec.setdefault("operator", "jacobs2015")
+        self.op = OPERATORS[self.operator]
+        self.source, ppd = open_source(self.spec)
+        self._cache = OrderedDict()
+        self.spec.setdefault("pixels_per_degree", ppd)
+        self.spec.setdefault("seed", 0)
+        self.shape = tuple(self._input(0).shape[:2])
+        self.period = float(self.source.times[-1] + self.source.dt[-1])
+        self.key = jax.random.key(self.spec["seed"])
+        self._params = {}
+        if self.op is jacobs2015:
+            self.effects = set(self.spec.setdefault("effects", list(jacobs2015.EFFECTS)))
+        else:
+            self.effects = set()
+            self.spec["effects"] = []
+        self.index, self.t = 0, 0.0
+        self._reset_pending = True
+        self.state = None
+
+    @property
+    def available_effects(self):
+        """The effects this operator can switch (none for pattanaik2000)."""
+        from jaxadapt.operators import jacobs2015
+
+        return jacobs2015.EFFECTS if self.op is jacobs2015 else ()
+
+    def params(self):
+        """The operator's :class:`Params` for the effects now on (cached:
+        each combination compiles once)."""
+        key = self.effects_name()
+        if key not in self._params:
+            ppd = float(self.spec["pixels_per_degree"])
+            if self.available_effects:
+                blur = self.op.blur_for_display(ppd, 1 / FIRST_DT)
+                self._params[key] = self.op.only(
+                    *sorted(self.effects), pixels_per_degree=ppd, afterimage_blur=blur
+                )
+            else:
+                self._params[key] = self.op.Params(goal="foveal", pixels_per_degree=ppd)
+        return self._params[key]
+
+    def effects_name(self):
+        """The effects on, as recorded: names joined by ``+``, ``-`` for none."""
+        if not self.available_effects:
+            return ""
+        return "+".join(e for e in self.available_effects if e in self.effects) or "-"
+
+    def set_effects(self, name):
+        """Switch the effects to those of an :meth:`effects_name` string."""
+        if self.available_effects:
+            self.effects = set() if name == "-" else set(name.split("+"))
+
+    def toggle(self, effect, on):
+        """Switch ``effect`` (a name of :attr:`available_effects`) on or off."""
+        if effect not in self.available_effects:
+            raise ValueError(
+                f"effect: expected one of {', '.join(self.available_effects) or 'none'} "
+                f"for {self.operator}, got {effect!r}"
+            )
+        (self.effects.add if on else self.effects.discard)(effect)
+
+    def reset(self):
+        """Restart the scene and the viewer's adaptation, from the next frame."""
+        self._reset_pending = True
+
+    def scene_index(self, t):
+        """Index of the input frame at session time ``t`` (s): the input loops."""
+        loop = math.fmod(t, self.period)
+        return int(np.searchsorted(self.source.times, loop, side="right") - 1)
+
+    def _input(self, i):
+        cache = self._cache
+        if i not in cache:
+            cache[i] = self.source.frames(np.array([i]))[0]
+            while len(cache) > 1 and len(cache) * cache[i].nbytes > FRAME_CACHE_BYTES:
+                cache.popitem(last=False)
+        cache.move_to_end(i)
+        return cache[i]
+
+    def advance(self, dt, gaze, scene_index=None):
+        """Show the next frame with gaze sample ``gaze`` (x, y pixels; NaN a
+        blink) and advance the state by ``dt`` seconds; return its :class:`Frame`.
+
+        ``scene_index`` (a replay's) overrides the input frame that the
+        session time gives."""
+        import jax.numpy as jnp
+
+        reset = self._reset_pending
+        if reset:
+            self.t, self._reset_pending = 0.0, False
+        i = self.scene_index(self.t) if scene_index is None else scene_index
+        frame = jnp.asarray(self._input(i))
+        g = jnp.asarray(np.asarray(gaze, np.float32))
+        params = self.params()
+        if reset:
+            self.state = self.op.init(
+                params, frame, gaze=g, key=self.key, adaptation=self.source.adaptation
+            )
+        self.state, out = self.op.step(params, self.state, frame, dt, gaze=g)
+        record = Frame(
+            self.index,
+            self.t,
+            float(dt),
+            tuple(float(v) for v in np.asarray(g)),
+            i,
+            self.effects_name(),
+            reset,
+            self._pixels(out),
+            self.adaptation(),
+        )
+        self.index, self.t = self.index + 1, self.t + float(dt)
+        return record
+
+    def warm(self):
+        """Compile the step for the effects now on (a step on the first
+        input frame from a fresh state; the session is left as it was)."""
+        import jax.numpy as jnp
+
+        params, frame = self.params(), jnp.asarray(self._input(0))
+        gaze = jnp.asarray(np.full(2, np.nan, np.float32))
+        state = self.op.init(params, frame, gaze=gaze, key=self.key)
+        self._pixels(self.op.step(params, state, frame, FIRST_DT, gaze=gaze)[1])
+
+    def _pixels(self, out):
+        from jaxadapt import display
+
+        if self.available_effects:  # jacobs2015: display-encoded (and dithered) J
+            return display.to_uint8(out)
+        return display.encode_uint8(out, "srgb")
+
+    def adaptation(self):
+        """The viewer's adaptation luminance now, cd/m2 (jacobs2015: ``10^A``;
+        pattanaik2000: the cones' ``A_cone``)."""
+        if self.state is None:
+            return math.nan
+        if self.available_effects:
+            return float(10.0**self.state.A)
+        return float(self.state.A_cone)
+
+
+class Recorder:
+    """Writes a session's record into folder ``path``: ``session.json`` (the
+    spec, then the frame count and ``complete``), ``frames.csv`` (one row
+    per frame, :data:`FRAME_COLUMNS`; ``t`` restarts at a reset) and
+    ``gaze.csv`` (``t,x,y`` rows: the gaze used by each frame against the
+    time since the session started, which ``jaxadapt render --gaze`` reads)."""
+
+    def __init__(self, path, spec):
+        self.path = Path(path)
+        if (self.path / "session.json").exists():
+            raise ValueError(
+                f"--record: expected a folder without a recorded session, got {self.path}, "
+                "which holds one (session.json); choose another folder"
+            )
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.spec = {**spec, "files": [str(f) for f in spec.get("files") or []]}
+        self.count, self.clock = 0, 0.0
+        self._write_session(complete=False)
+        self._frames = open(self.path / "frames.csv", "w", newline="")
+        self._rows = csv.writer(self._frames)
+        self._rows.writerow(FRAME_COLUMNS)
+        self._gaze = []  # (time since the start, x, y) of each frame
+
+    def _write_session(self, complete):
+        from jaxadapt import __version__
+
+        text = json.dumps(
+            {**self.spec, "jaxadapt": __version__, "frames": self.count, "complete": complete},
+            indent=2,
+        )
+        partial = self.path / "session.json.partial"
+        partial.write_text(text + "\n")
+        partial.replace(self.path / "session.json")
+
+    def write(self, frame):
+        """Append one :class:`Frame`."""
+        x, y = (repr(v) if math.isfinite(v) else "" for v in frame.gaze)  # "": a blink
+        row = [frame.index, repr(frame.t), repr(frame.dt), x, y, frame.scene_index]
+        self._rows.writerow([*row, frame.effects, int(frame.reset), frame.digest])
+        self._gaze.append((self.clock, *frame.gaze))
+        self.count, self.clock = self.count + 1, self.clock + frame.dt
+        if self.count % 30 == 0:
+            self._frames.flush()
+
+    def close(self):
+        """Close ``frames.csv``, write ``gaze.csv``; mark the record complete."""
+        from jaxadapt.gaze import write_gaze_csv
+
+        self._frames.close()
+        gaze = np.reshape(np.asarray(self._gaze, np.float64), (-1, 3))
+        write_gaze_csv(self.path / "gaze.csv", gaze[:, 0], gaze[:, 1:])
+        self._write_session(complete=True)
+
+
+def read_record(path):
+    """The spec (``session.json``) and frame rows (``frames.csv``, dicts of
+    numbers and strings) of a record written by ``jaxadapt view --record``."""
+    path = Path(path)
+    try:
+        spec = json.loads((path / "session.json").read_text())
+        with open(path / "frames.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+    except FileNotFoundError as error:
+        raise FileNotFoundError(f"record: {error.filename}: no such file") from None
+    return spec, rows
+
+
+def replay(path):
+    """Replay a recorded session: yield its :class:`Frame` s as the viewer
+    showed them, from the record's spec, ``dt``, gaze, input frame, effects
+    and resets of each frame (exactly: each frame's ``digest`` matches the
+    recorded one, in a process with JAX's precision as recorded: float64
+    off, as the command line runs; with it on, a dithered pixel can round
+    the other way).
+
+    Examples
+    --------
+    ``[f.digest for f in replay("session")]`` equals the ``digest`` column of
+    ``session/frames.csv``.
+    """
+    spec, rows = read_record(path)
+    spec = {k: v for k, v in spec.items() if k not in ("jaxadapt", "frames", "complete")}
+    session = Session(spec)
+    for row in rows:
+        if int(row["reset"]):
+            session.reset()
+        session.set_effects(row["effects"])
+        gaze = (float(row["x"] or "nan"), float(row["y"] or "nan"))
+        yield session.advance(float(row["dt"]), gaze, int(row["scene_index"]))

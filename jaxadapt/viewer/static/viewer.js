@@ -1,0 +1,115 @@
+// jaxadapt view: draw the server's frames, send the pointer as the gaze.
+"use strict";
+(function () {
+  const canvas = document.getElementById("view");
+  const context = canvas.getContext("2d");
+  const overlay = document.getElementById("overlay");
+  const message = document.getElementById("message");
+  const state = { frames: 0, header: null, size: [16, 9], paused: false, gazeId: 0, errors: [], seen: [] };
+  window.jaxadapt = state; // for tests and the curious
+  const url = new URL("ws", location.href);
+  url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
+  url.search = location.search; // the token, where one is needed
+  const socket = new WebSocket(url);
+  socket.binaryType = "arraybuffer";
+  let pending = 0; // frames drawn but not acknowledged while the tab is hidden
+
+  function send(object) {
+    if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(object));
+  }
+
+  function ack() {
+    if (document.hidden) { pending += 1; return; } // a hidden tab asks for nothing
+    send({ type: "ack" });
+  }
+
+  document.addEventListener("visibilitychange", function () {
+    while (!document.hidden && pending > 0) { pending -= 1; send({ type: "ack" }); }
+  });
+
+  function fit() {
+    const [w, h] = state.size;
+    const scale = Math.min((innerWidth - 16) / w, (innerHeight - 90) / h);
+    canvas.style.width = Math.max(1, Math.floor(w * scale)) + "px";
+    canvas.style.height = Math.max(1, Math.floor(h * scale)) + "px";
+  }
+  addEventListener("resize", fit);
+
+  function effectBoxes(available, on) {
+    const box = document.getElementById("effects");
+    box.textContent = "";
+    available.forEach(function (name, i) {
+      const label = document.createElement("label");
+      const input = document.createElement("input");
+      input.type = "checkbox";
+      input.id = "effect-" + name;
+      input.checked = on.includes(name);
+      input.addEventListener("change", function () {
+        send({ type: "effect", name: name, on: input.checked });
+      });
+      label.append(input, " " + (i + 1) + " " + name.replace("_", " "));
+      box.append(label);
+    });
+  }
+
+  async function draw(buffer) {
+    const length = new DataView(buffer).getUint32(0);
+    const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
+    const blob = new Blob([new Uint8Array(buffer, 4 + length)], { type: "image/jpeg" });
+    const bitmap = await createImageBitmap(blob);
+    context.drawImage(bitmap, 0, 0);
+    bitmap.close();
+    state.frames += 1;
+    state.header = header;
+    state.seen.push([header.frame, header.digest]); // the last frames drawn, for tests
+    if (state.seen.length > 300) state.seen.shift();
+    const a = header.adaptation;
+    overlay.textContent =
+      header.fps.toFixed(0) + " frames/s  frame " + header.frame + "\n" +
+      "adapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
+      "t = " + header.t.toFixed(2) + " s" + (state.paused ? "  (paused)" : "");
+    ack();
+  }
+
+  socket.addEventListener("message", function (event) {
+    if (typeof event.data !== "string") { draw(event.data); return; }
+    const m = JSON.parse(event.data);
+    if (m.type === "hello") {
+      state.size = m.size;
+      canvas.width = m.size[0];
+      canvas.height = m.size[1];
+      fit();
+      effectBoxes(m.available_effects, m.effects);
+    } else if (m.type === "error" || m.type === "warning") {
+      state.errors.push(m.message);
+      message.textContent = m.type + ": " + m.message;
+    }
+  });
+  socket.addEventListener("close", function (event) {
+    overlay.textContent = "disconnected" + (event.reason ? ": " + event.reason : "");
+  });
+
+  canvas.addEventListener("pointermove", function (event) {
+    const rect = canvas.getBoundingClientRect();
+    const x = (event.clientX - rect.left) / rect.width * canvas.width - 0.5;
+    const y = (event.clientY - rect.top) / rect.height * canvas.height - 0.5;
+    state.gazeId += 1;
+    send({ type: "gaze", x: x, y: y, id: state.gazeId, t: performance.now() / 1000 });
+  });
+
+  function pause() {
+    state.paused = !state.paused;
+    document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
+    send({ type: "pause", paused: state.paused });
+  }
+  document.getElementById("pause").addEventListener("click", pause);
+  document.getElementById("reset").addEventListener("click", function () { send({ type: "reset" }); });
+  addEventListener("keydown", function (event) {
+    if (event.key === " ") { pause(); event.preventDefault(); }
+    else if (event.key === "r") send({ type: "reset" });
+    else if (/^[1-9]$/.test(event.key)) {
+      const input = document.querySelectorAll("#effects input")[Number(event.key) - 1];
+      if (input) input.click();
+    }
+  });
+})();

@@ -1,0 +1,346 @@
+"""The live viewer (jaxadapt.viewer) driven in a real browser: Debian's
+headless Chromium through selenium, one browser and one server for the
+module. The server records the session, and the last test replays it."""
+
+import asyncio
+import base64
+import hashlib
+import io
+import json
+import math
+import os
+import queue
+import threading
+import time
+import urllib.request
+from pathlib import Path
+from types import SimpleNamespace
+
+import aiohttp
+import numpy as np
+import pytest
+from PIL import Image
+
+from jaxadapt.cli import main
+from jaxadapt.gaze import read_gaze_csv
+from jaxadapt.viewer import Recorder, Server, Session, read_record, replay
+from jaxadapt.viewer._server import WINDOW
+
+CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+#: The flash scene, small: a 1e7 cd/m2 disk of 1.5 degrees at the centre, 12.8 px/deg.
+W, H = 128, 96
+
+
+def _serve(session, record):
+    """A :class:`Server` of ``session`` in a thread of its own; returns it, its
+    URL and a function that stops it (its record then complete)."""
+    ready, stop = queue.Queue(), threading.Event()
+
+    async def main():
+        server = Server(session)
+        url = await server.start(lambda: Recorder(record, session.spec))
+        ready.put((server, url))
+        while not stop.is_set():
+            await asyncio.sleep(0.05)
+        await server.close()
+
+    thread = threading.Thread(target=asyncio.run, args=(main(),), daemon=True)
+    thread.start()
+    server, url = ready.get(timeout=120)
+
+    def close():
+        stop.set()
+        thread.join(60)
+
+    return server, url, close
+
+
+@pytest.fixture(scope="module")
+def viewer(tmp_path_factory):
+    session = Session({"scene": "flash", "size": [W, H]})
+    session.warm()
+    record = tmp_path_factory.mktemp("viewer") / "record"
+    server, url, close = _serve(session, record)
+    yield SimpleNamespace(server=server, url=url, record=record, close=close)
+    close()
+
+
+@pytest.fixture(scope="module")
+def browser(viewer, tmp_path_factory):
+    if not CHROMIUM.exists() or not CHROMEDRIVER.exists():
+        pytest.skip("needs Debian's chromium and chromium-driver (/usr/bin/chromium)")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for flag in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--window-size=800,600",
+        f"--user-data-dir={tmp_path_factory.mktemp('chromium')}",
+    ):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=options)
+    driver.get(viewer.url)
+    _until(lambda: driver.execute_script("return window.jaxadapt.frames") > 3, "frames")
+    yield driver
+    driver.quit()
+
+
+def _until(condition, what, timeout=20.0):
+    """Wait until ``condition()`` holds; its last value."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _state(viewer):
+    with urllib.request.urlopen(viewer.url + "state", timeout=5) as response:
+        return json.load(response)
+
+
+def _point(browser, x, y):
+    """Move the pointer to frame pixel ``(x, y)`` of the canvas."""
+    _point_scaled(browser, x, y, W, H)
+
+
+def _point_scaled(browser, x, y, W, H):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    canvas = browser.find_element(By.ID, "view")
+    scale = canvas.size["width"] / W
+    dx, dy = (x + 0.5 - W / 2) * scale, (y + 0.5 - H / 2) * scale  # from the centre
+    ActionChains(browser, duration=0).move_to_element_with_offset(
+        canvas, round(dx), round(dy)
+    ).perform()
+
+
+def _canvas(browser):
+    """The canvas's pixels, ``(H, W, 3)`` uint8."""
+    from PIL import Image
+
+    url = browser.execute_script("return document.getElementById('view').toDataURL()")
+    png = base64.b64decode(url.split(",", 1)[1])
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def test_page_draws_frames_and_overlay(viewer, browser):
+    start = browser.execute_script("return window.jaxadapt.frames")
+    _until(lambda: browser.execute_script("return window.jaxadapt.frames") > start + 5, "frames")
+    overlay = browser.find_element("id", "overlay").text
+    assert "frames/s" in overlay and "cd/m2" in overlay and "t = " in overlay
+    state = _state(viewer)
+    assert state["size"] == [W, H] and state["frame"] > 5 and state["fps"] > 0
+    assert state["adaptation"] >= 100.0  # jacobs2015's adaptation floor, cd/m2 (§2.4)
+
+
+def test_gaze_in_state_follows_the_pointer(viewer, browser):
+    for x, y in ((20, 30), (100, 70), (64, 10)):
+        _point(browser, x, y)
+        assert _until(lambda p=(x, y): _near(_state(viewer)["gaze"], p, 1.5), f"gaze at {x}, {y}")
+        frame = _until(lambda: browser.execute_script("return window.jaxadapt.header"), "header")
+        assert frame["size"] == [W, H]
+
+
+def _near(gaze, point, tolerance):
+    return gaze[0] is not None and math.dist(gaze, point) <= tolerance
+
+
+def _afterimage_centre(pixels):
+    """Centroid ``(x, y)`` of the pixels brighter than the dark field."""
+    bright = pixels.max(axis=-1) > 10  # the afterimage peaks near 40
+    if bright.sum() < 10:
+        return None
+    y, x = np.nonzero(bright)
+    return float(x.mean()), float(y.mean())
+
+
+def test_afterimage_of_a_flash_moves_with_the_gaze(viewer, browser):
+    """The flash (1/8 s of 1e7 cd/m2 at 0.25 s, fixated at the centre)
+    leaves a bleaching afterimage on the retina (Jacobs 2015, Fig. 4): where
+    the gaze goes, it goes."""
+    cx, cy = (W - 1) / 2, (H - 1) / 2
+    _point(browser, cx, cy)
+    _until(lambda: _near(_state(viewer)["gaze"], (cx, cy), 1.0), "gaze at the centre")
+    browser.find_element("id", "reset").click()  # the scene from 0 s, the flash to come
+    _until(lambda: _state(viewer)["t"] < 0.25, "the reset")
+    _until(lambda: 0.6 < _state(viewer)["t"] < 2.0, "the flash to pass", timeout=10)
+    before = _afterimage_centre(_canvas(browser))
+    assert before is not None and math.dist(before, (cx, cy)) < 4
+    _point(browser, cx + 30, cy - 15)
+    _until(lambda: _near(_state(viewer)["gaze"], (cx + 30, cy - 15), 1.0), "gaze moved")
+    time.sleep(0.3)  # frames with the new gaze drawn
+    after = _afterimage_centre(_canvas(browser))
+    assert after is not None and math.dist(after, (cx + 30, cy - 15)) < 5
+
+
+def test_bad_messages_get_a_message_and_the_server_runs_on(viewer, browser):
+    replies = asyncio.run(_misbehave(viewer.url))
+    assert "expected a JSON object" in replies["malformed"]
+    assert "expected a message of type" in replies["unknown"]
+    assert "off the 128x96 frame" in replies["off frame"]
+    assert "expected numbers" in replies["strings"]
+    assert "expected JSON text" in replies["binary"]
+    assert "line" in replies["tracker garbage"] and "off the" in replies["tracker off"]
+    assert replies["other origin"] == 403
+    frames = browser.execute_script("return window.jaxadapt.frames")
+    _until(lambda: browser.execute_script("return window.jaxadapt.frames") > frames + 3, "frames")
+    _until(lambda: _state(viewer)["clients"] == 1, "the others gone")  # the page stays
+
+
+async def _misbehave(url):
+    """Send a page socket and a tracker socket garbage; their replies by case."""
+    ws_url = url.replace("http", "ws")
+    replies = {}
+    async with aiohttp.ClientSession() as http:
+        async with http.ws_connect(ws_url + "ws") as ws:
+            await ws.receive_json()  # hello
+            for case, text in (
+                ("malformed", "{nope"),
+                ("unknown", '{"type": "jump"}'),
+                ("off frame", '{"type": "gaze", "x": 500, "y": 3}'),
+                ("strings", '{"type": "gaze", "x": "1", "y": 2}'),
+            ):
+                await ws.send_str(text)
+                replies[case] = await _reply(ws)
+            await ws.send_bytes(b"\x00\x01")
+            replies["binary"] = await _reply(ws)
+        # a page that goes away mid-frame
+        ws = await http.ws_connect(ws_url + "ws")
+        await ws.receive()
+        await ws.close()
+        async with http.ws_connect(ws_url + "gaze") as ws:
+            await ws.send_str('{"t": 0, "x": 1}\n')
+            replies["tracker garbage"] = await _reply(ws)
+            await ws.send_str('{"t": 0.1, "x": -5, "y": 3}')
+            replies["tracker off"] = await _reply(ws)
+        async with http.get(url + "state", headers={"Origin": "http://evil.example"}) as r:
+            replies["other origin"] = r.status
+    return replies
+
+
+async def _reply(ws):
+    """The next error or warning message on ``ws`` (frames skipped)."""
+    while True:
+        msg = await asyncio.wait_for(ws.receive(), 10)
+        if msg.type == aiohttp.WSMsgType.TEXT:
+            return json.loads(msg.data)["message"]
+
+
+def test_an_external_tracker_drives_the_gaze(viewer, browser):
+    """Samples sent to /gaze as JSON lines move the gaze; a null sample is a blink."""
+
+    async def track():
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(viewer.url.replace("http", "ws") + "gaze") as ws:
+                await ws.send_str('{"t": 0.0, "x": 12.5, "y": 80}\n')
+                await asyncio.to_thread(
+                    _until, lambda: _near(_state(viewer)["gaze"], (12.5, 80), 0.01), "tracked"
+                )
+                _point(browser, 90, 20)  # ignored while a tracker drives the gaze
+                await asyncio.sleep(0.2)
+                assert _near(_state(viewer)["gaze"], (12.5, 80), 0.01)
+                await ws.send_str('{"t": 0.1, "x": null, "y": null}')
+                await asyncio.to_thread(
+                    _until, lambda: _state(viewer)["gaze"] == [None, None], "a blink"
+                )
+
+    asyncio.run(track())
+
+
+def test_effects_pause_and_a_page_that_falls_behind(viewer, browser):
+    """A checkbox switches an effect; space pauses the simulation; a page
+    that acknowledges nothing gets :data:`WINDOW` frames and no more, while
+    the others go on (frames dropped for it, not queued)."""
+    from selenium.webdriver.common.keys import Keys
+
+    browser.find_element("id", "effect-dithering").click()
+    _until(lambda: "dithering" not in _state(viewer)["effects"], "dithering off", timeout=60)
+    _until(
+        lambda: "dithering" not in browser.execute_script("return window.jaxadapt.header.effects"),
+        "frames without dithering",
+        timeout=60,
+    )
+
+    async def lagging():
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(viewer.url.replace("http", "ws") + "ws") as ws:
+                start = browser.execute_script("return window.jaxadapt.frames")
+                await asyncio.sleep(1.0)
+                frames = 0
+                while True:
+                    try:
+                        msg = await asyncio.wait_for(ws.receive(), 0.2)
+                    except asyncio.TimeoutError:
+                        break
+                    frames += msg.type == aiohttp.WSMsgType.BINARY
+                return frames, browser.execute_script("return window.jaxadapt.frames") - start
+
+    lagged, drawn = asyncio.run(lagging())
+    assert lagged == WINDOW and drawn > 10
+    browser.find_element("tag name", "body").send_keys(Keys.SPACE)
+    _until(lambda: _state(viewer)["paused"], "paused")
+    frame = _state(viewer)["frame"]
+    time.sleep(0.3)
+    assert _state(viewer)["frame"] <= frame + WINDOW
+    browser.find_element("tag name", "body").send_keys(Keys.SPACE)
+    _until(lambda: _state(viewer)["frame"] > frame + 5, "resumed")
+    browser.find_element("id", "effect-dithering").click()
+
+
+def test_recorded_session_replays_to_the_frames_shown(viewer, browser, tmp_path):
+    """The frames the browser drew (their digests) are those that
+    :func:`replay`, and ``jaxadapt render --replay`` in its PNGs, make
+    offline from the record."""
+    seen = browser.execute_script("return window.jaxadapt.seen")
+    viewer.close()
+    spec, rows = read_record(viewer.record)
+    assert json.loads((viewer.record / "session.json").read_text())["complete"]
+    assert spec["frames"] == len(rows) > 50
+    replayed = {f.index: f.digest for f in replay(viewer.record)}
+    assert [replayed[int(r["frame"])] for r in rows] == [r["digest"] for r in rows]
+    assert all(replayed[frame] == digest for frame, digest in seen)
+    out = tmp_path / "replay"
+    assert main(["render", "--replay", str(viewer.record), "--out", str(out)]) == 0
+    written = {
+        int(png.stem.removeprefix("frame_")): Image.open(png).tobytes()
+        for png in out.glob("frame_*.png")
+    }
+    assert len(written) == len(rows) and (out / "video.mp4").stat().st_size > 0
+    digests = {k: hashlib.sha256(pixels).hexdigest()[:16] for k, pixels in written.items()}
+    assert all(digests[frame] == digest for frame, digest in seen)
+    times, points = read_gaze_csv(viewer.record / "gaze.csv")  # what render --gaze reads
+    assert len(times) == len(rows) and np.isnan(points).any()  # the tracker's blink
+
+
+@pytest.mark.skipif(not os.environ.get("JAXADAPT_SCREENSHOT"), reason="JAXADAPT_SCREENSHOT unset")
+def test_screenshot(browser, tmp_path):
+    """Save the page as JAXADAPT_SCREENSHOT (docs/viewer.png): the
+    checkerboard of Fig. 3 b fixated, then the gaze on the field beside it,
+    where the board's adaptation afterimage shows."""
+    size = (384, 216)  # the default
+    session = Session({"scene": "checkerboard", "size": list(size)})
+    session.warm()
+    server, url, close = _serve(session, tmp_path / "record")
+    try:
+        browser.set_window_size(900, 560)
+        browser.get(url)
+        _until(lambda: browser.execute_script("return window.jaxadapt.frames") > 3, "frames")
+        _point_scaled(browser, 95.5, 107.5, *size)  # the board's centre
+        time.sleep(5.0)
+        _point_scaled(browser, 287.5, 107.5, *size)  # the field's
+        time.sleep(0.5)
+        browser.save_screenshot(os.environ["JAXADAPT_SCREENSHOT"])
+    finally:
+        close()

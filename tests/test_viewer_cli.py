@@ -1,0 +1,318 @@
+"""``jaxadapt view`` without a browser: its option errors, Ctrl-C, the
+simulation's clock, the record and its replay, and the server's guards."""
+
+import asyncio
+import contextlib
+import json
+import math
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import aiohttp
+import jax
+import numpy as np
+import pytest
+from PIL import Image
+
+from jaxadapt._program import SIGNALS
+from jaxadapt.cli import main
+from jaxadapt.gaze import read_gaze_csv, write_gaze_csv
+from jaxadapt.viewer import (
+    FIRST_DT,
+    MAX_DT,
+    Recorder,
+    Server,
+    Session,
+    _server,
+    read_record,
+    replay,
+)
+from jaxadapt.viewer._server import Simulation
+from jaxadapt.viewer._session import open_source
+
+SMALL = {"scene": "flash", "size": [32, 24]}
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--port", "70000"], "argument --port: expected a port from 0 to 65535"),
+        (["--size", "1x5"], "argument --size: expected a size of at least 2x2"),
+        (["--operator", "reinhard"], "argument --operator: invalid choice"),
+        (["x.exr", "--scene", "flash"], "--scene: applies when no FILE is given"),
+        (["--fps", "30"], "--fps: applies to FILE input"),
+        (["--operator", "pattanaik2000", "--seed", "3"], "--seed: applies to --operator jacobs"),
+        (["--operator", "pattanaik2000", "--off", "acuity"], "--off: applies to --operator"),
+        (["--off", "blur"], "argument --off: invalid choice"),
+        (["missing.exr"], "FILE: missing.exr: no such file"),
+        (["--multiplier", "-1"], "argument --multiplier: expected a positive number"),
+    ],
+)
+def test_option_errors_are_one_line_and_status_2(argv, says, capsys):
+    assert _status(["view", "--no-browser", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and says in err, err
+
+
+def _status(argv):
+    """The exit status of ``jaxadapt ARGV`` run here (the parser's errors exit)."""
+    try:
+        return main(argv)
+    except SystemExit as exit:
+        return exit.code
+
+
+def test_a_recorded_folder_is_not_overwritten(tmp_path, capsys):
+    (tmp_path / "session.json").write_text("{}")
+    assert main(["view", "--no-browser", "--record", str(tmp_path)]) == 2
+    assert "--record:" in capsys.readouterr().err
+    assert (tmp_path / "session.json").read_text() == "{}"
+
+
+def test_a_port_in_use_is_one_line(capsys):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        argv = ["view", "--no-browser", "--scene", "flash", "--size", "32x24", "--port", str(port)]
+        assert main(argv) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1].startswith("jaxadapt: error: --host, --port: cannot listen on 127.0.0.1")
+
+
+def test_write_gaze_csv_round_trips_through_read_gaze_csv(tmp_path):
+    times = np.array([0.0, 1 / 3, 0.7000000000000001])
+    points = np.array([[1 / 7, 2.5], [np.nan, np.nan], [3.0, 1e-9]])
+    write_gaze_csv(tmp_path / "g.csv", times, points)
+    t, p = read_gaze_csv(tmp_path / "g.csv")
+    assert t.tolist() == times.tolist()
+    np.testing.assert_array_equal(p, points)  # NaN where NaN, the rest bit for bit
+
+
+@pytest.mark.parametrize("operator", ["jacobs2015", "pattanaik2000"])
+def test_replay_gives_the_recorded_frames_exactly(operator, tmp_path):
+    """Frames of varying ``dt`` and gaze, a blink, an effect switched and a
+    reset: :func:`replay` makes every one again, bit for bit."""
+    session = Session({**SMALL, "operator": operator})
+    record = tmp_path / "record"
+    recorder = Recorder(record, session.spec)
+    rng = np.random.default_rng(0)
+    shown = []
+    for k in range(14):
+        if k == 5 and session.available_effects:
+            session.toggle("acuity", False)
+        if k == 9:
+            session.reset()
+        gaze = (math.nan, math.nan) if k == 3 else tuple(rng.uniform(0, 30, 2))
+        frame = session.advance(float(rng.uniform(0.005, MAX_DT)), gaze)
+        recorder.write(frame)
+        shown.append(frame.pixels)
+    recorder.close()
+    again = list(replay(record))
+    assert len(again) == len(shown)
+    for live, replayed in zip(shown, again, strict=True):
+        np.testing.assert_array_equal(replayed.pixels, live)
+    spec, rows = read_record(record)
+    assert spec["complete"] and spec["frames"] == 14 and rows[9]["reset"] == "1"
+    times, points = read_gaze_csv(record / "gaze.csv")
+    assert np.all(np.diff(times) > 0) and np.isnan(points[3]).all()
+    # The command line's replay writes the same frames, read back from its PNGs
+    out = tmp_path / "out"
+    assert main(["render", "--replay", str(record), "--out", str(out), "--format", "png"]) == 0
+    written = [np.asarray(Image.open(out / f"frame_{k:05d}.png")) for k in range(len(shown))]
+    for live, png in zip(shown, written, strict=True):
+        np.testing.assert_array_equal(png, live)
+    diagnostics = np.genfromtxt(out / "diagnostics.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(diagnostics["dt"], [float(r["dt"]) for r in rows], rtol=1e-5)
+    assert np.isnan(diagnostics["gaze_x"][3]) and np.all(diagnostics["adaptation"] > 0)
+    assert {p.name for p in out.iterdir()} >= {"contact_sheet.png", "adaptation.png"}
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--scene", "flash"], "--scene: does not apply with --replay"),
+        (["x.exr"], "FILE: does not apply with --replay"),
+        (["--operator", "jacobs2015"], "--operator: does not apply with --replay"),
+        (["--chunk", "4"], "--chunk: does not apply with --replay"),
+        (["--format", "exr"], "--format: a replay writes the viewer's 8-bit frames"),
+    ],
+)
+def test_replay_options_the_record_fixes_are_refused(argv, says, tmp_path, capsys):
+    session = Session(SMALL)
+    with contextlib.closing(Recorder(tmp_path / "record", session.spec)) as recorder:
+        recorder.write(session.advance(FIRST_DT, (5.0, 5.0)))
+    out = tmp_path / "out"
+    assert _status(["render", "--replay", str(tmp_path / "record"), *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and says in err, err
+    assert not out.exists()
+
+
+def test_replay_of_a_folder_without_a_record_is_one_line(tmp_path, capsys):
+    assert _status(["render", "--replay", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxadapt: error: --replay: expected a folder recorded by jaxadapt view")
+    assert err.count("\n") == 1 and "session.json: no such file" in err
+
+
+def test_files_are_shrunk_to_fit_and_played_in_a_loop(tmp_path):
+    """Two PFM frames of 64x48 at 2 frames/s, viewed at 32x32: shrunk to
+    32x24 (aspect kept, in linear light: a uniform frame keeps its value),
+    their 30 pixels per degree halved, the sequence repeated every 1 s."""
+    from jaxadapt import io
+
+    paths = [tmp_path / f"f{i}.pfm" for i in range(2)]
+    for i, path in enumerate(paths):
+        io.write_image(path, np.full((48, 64, 3), 10.0 * (i + 1), np.float32))
+    spec = {"files": [str(p) for p in paths], "fps": 2.0, "size": [32, 32]}
+    assert open_source(spec)[1] == 15.0
+    session = Session({**spec, "pixels_per_degree": 3.2})  # SMALL's: its compiled step
+    assert session.shape == (24, 32)
+    assert [session.scene_index(t) for t in (0.0, 0.6, 1.2, 1.7)] == [0, 1, 0, 1]
+    np.testing.assert_allclose(session._input(1), 20.0, rtol=1e-6)
+    frame = session.advance(0.1, (5.0, 5.0))
+    assert frame.pixels.shape == (24, 32, 3) and frame.adaptation >= 100.0
+
+
+def test_each_frame_advances_by_the_time_measured_and_clamped():
+    """dt is the wall-clock time since the last frame; the first one, and the
+    first after a pause, last :data:`FIRST_DT`; a gap (a sleeping tab)
+    counts at most :data:`MAX_DT`."""
+    published = []
+    session = Session(SMALL)
+    session.warm()  # (a compile in the first frame would count in the second's dt)
+    sim = Simulation(session, lambda header, jpeg: published.append(header))
+    sim.start()
+
+    def frame_after(gap):
+        time.sleep(gap)
+        count = len(published)
+        sim.want()
+        while len(published) == count:
+            time.sleep(0.001)
+        return published[-1]["dt"]
+
+    try:
+        assert frame_after(0) == FIRST_DT
+        assert 0.1 <= frame_after(0.1) < 0.1 + 0.1  # + a frame's work and a wake-up
+        assert frame_after(0.6) == MAX_DT
+        sim.command("pause", True)
+        sim.command("pause", False)
+        assert frame_after(0.3) == FIRST_DT
+    finally:
+        sim.stop()
+        sim.join(10)
+
+
+def test_guards_token_host_origin_paths_and_clients(monkeypatch):
+    """With a token every request needs it; a foreign Host or Origin is
+    refused; no path reaches the file system; pages beyond the limit are
+    refused with a message."""
+    monkeypatch.setattr(_server, "MAX_CLIENTS", 1)
+    statuses = asyncio.run(_probe(Session(SMALL)))
+    assert statuses == {
+        "no token": 403,
+        "token": 200,
+        "state": 200,
+        "traversal": 404,
+        "foreign host": 403,
+        "foreign origin": 403,
+        "second page": "at most 1 pages",
+    }
+
+
+async def _probe(session):
+    server = Server(session, token="s3cret")
+    url = await server.start()
+    base, statuses = url.split("?")[0], {}
+    try:
+        async with aiohttp.ClientSession() as http:
+            for case, path, headers in (
+                ("no token", "", {}),
+                ("token", "?token=s3cret", {}),
+                ("state", "state?token=s3cret", {}),
+                ("traversal", "..%2f..%2fetc%2fpasswd?token=s3cret", {}),
+                ("foreign origin", "?token=s3cret", {"Origin": "http://evil.example"}),
+            ):
+                async with http.get(base + path, headers=headers) as response:
+                    statuses[case] = response.status
+            ws_url = url.replace("http", "ws").replace("/?", "/ws?")
+            async with http.ws_connect(ws_url) as first:
+                await first.receive_json()
+                async with http.ws_connect(ws_url) as second:
+                    statuses["second page"] = (await second.receive_json())["message"]
+    finally:
+        await server.close()
+    plain = Server(session)
+    url = await plain.start()
+    try:
+        async with aiohttp.ClientSession() as http:
+            async with http.get(url, headers={"Host": f"evil.example:{plain.port}"}) as r:
+                statuses["foreign host"] = r.status
+    finally:
+        await plain.close()
+    return statuses
+
+
+def _default_signals():
+    for s in SIGNALS:
+        signal.signal(s, signal.SIG_DFL)
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_cleanly_with_the_record_complete(tmp_path):
+    record = tmp_path / "record"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxadapt", "view", "--no-browser", "--port", "0"]
+        + ["--scene", "flash", "--size", "48x32", "--record", str(record)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_signals,
+    )
+    try:
+        line = process.stdout.readline()
+        assert "serving http://127.0.0.1:" in line, process.stderr.read()
+        url = line.split()[3]
+        frames = asyncio.run(_watch(url, 1.0))
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 0, err
+    assert out.splitlines()[-1] == f"recorded {len(read_record(record)[1])} frames in {record}/"
+    spec, rows = read_record(record)
+    assert spec["complete"] and spec["frames"] == len(rows) >= frames > 5
+    assert sorted(p.name for p in record.iterdir()) == ["frames.csv", "gaze.csv", "session.json"]
+    assert len(read_gaze_csv(record / "gaze.csv")[0]) == len(rows)
+    with jax.enable_x64(False):  # as the command line ran (tests/conftest.py enables it)
+        assert [f.digest for f in replay(record)] == [r["digest"] for r in rows]
+
+
+async def _watch(url, seconds):
+    """Watch the page's stream for ``seconds`` as a page does (acknowledging
+    each frame); the frames received."""
+    frames = 0
+    async with aiohttp.ClientSession() as http:
+        async with http.ws_connect(url.replace("http", "ws") + "ws") as ws:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                msg = await asyncio.wait_for(ws.receive(), 30)
+                if msg.type == aiohttp.WSMsgType.BINARY:
+                    frames += 1
+                    await ws.send_json({"type": "ack"})
+                    await ws.send_json({"type": "gaze", "x": frames % 40, "y": 10, "id": frames})
+    return frames
+
+
+def test_frame_messages_carry_their_header():
+    header = {"frame": 3, "gaze_id": 7}
+    message = _server.frame_message(header, b"\xff\xd8jpeg")
+    length = int.from_bytes(message[:4], "big")
+    assert (
+        json.loads(message[4 : 4 + length]) == header and message[4 + length :] == b"\xff\xd8jpeg"
+    )
