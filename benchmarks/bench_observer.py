@@ -1,7 +1,7 @@
 """Simulated trials per second: the afterimage protocol with 10,000 observers.
 
 The stimuli are rendered once with the 2015 operator (not timed); then one
-call of :func:`jaxadapt.psychophysics.observer.simulate` draws 10,000
+call of :func:`jaxadapt.psychophysics.experiment.simulate` draws 10,000
 observers from the protocol's default population, gives each a randomised,
 counter-balanced trial order (320 trials: 20 training, 100 control, 200 in
 the main block) and simulates every answer. Compile time is excluded,
@@ -33,7 +33,9 @@ from common import machine, median_seconds, write_result
 from scipy.special import ndtr
 
 from jaxadapt.psychophysics import design, psychometric
+from jaxadapt.psychophysics import experiment as experiments
 from jaxadapt.psychophysics import observer as obs
+from jaxadapt.psychophysics import population as populations
 
 PROTOCOL = design.AFTERIMAGE
 
@@ -67,12 +69,12 @@ def main():
     args = parser.parse_args()
 
     stimuli = obs.render_stimuli(PROTOCOL, key=jax.random.key(0))
-    population = obs.POPULATIONS["afterimage"]
+    population = populations.POPULATIONS["afterimage"]
     N, T = args.observers, PROTOCOL.n_trials
     key = jax.random.key(1)
 
     def simulate():
-        return jax.block_until_ready(obs.simulate(key, PROTOCOL, stimuli, population, N))
+        return jax.block_until_ready(experiments.simulate(key, PROTOCOL, stimuli, population, N))
 
     start = time.perf_counter()
     experiment = simulate()

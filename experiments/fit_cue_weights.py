@@ -22,7 +22,7 @@ Formulation
   so that an interval may include 0. Each observer's weights spread around
   the mean by half its size (``WEIGHT_SPREAD`` of ``jacobs_psychophysics``);
   the other fields are each protocol's default population
-  (:data:`jaxadapt.psychophysics.observer.POPULATIONS`). The two medians
+  (:data:`jaxadapt.psychophysics.population.POPULATIONS`). The two medians
   are fitted jointly, two equations in two unknowns, so that a stimulus
   carrying more than one cue moves both. In these renders none does: the
   afterimage stimuli's desaturation cue is at its floor in both conditions
@@ -38,7 +38,7 @@ Formulation
   (:func:`jaxadapt.psychophysics.observer.true_pse`, the limit of
   infinitely many trials) and averages the median shift over
   :data:`GROUPS` groups of 11 observers drawn from fixed standard normals
-  (common random numbers, :func:`~jaxadapt.psychophysics.observer.observers_from_normals`):
+  (common random numbers, :func:`~jaxadapt.psychophysics.population.observers_from_normals`):
   a deterministic function of the weights, differentiated by ``jax.jacfwd``
   (each group's median has kinks where two observers swap places; the
   average over groups evens them out), whose Monte Carlo error, about
@@ -121,6 +121,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from jaxadapt import fitting  # noqa: E402
 from jaxadapt.psychophysics import design, stats  # noqa: E402
 from jaxadapt.psychophysics import observer as obs  # noqa: E402
+from jaxadapt.psychophysics import population as populations  # noqa: E402
 
 #: The two experiments, in the order of the model's output.
 PROTOCOLS = ("afterimage", "mesopic")
@@ -193,7 +194,7 @@ class Calibration(NamedTuple):
     """
 
     stimuli: obs.Stimuli
-    populations: obs.Population
+    populations: populations.Population
     normals: jax.Array
 
 
@@ -214,11 +215,11 @@ def calibration(key, stimuli, groups=GROUPS, participants=ANALYSED):
     name), with the protocols' default populations and independent normals
     from ``key``."""
     normals = jax.random.normal(
-        key, (len(PROTOCOLS), groups, participants, obs.N_NORMALS), jnp.result_type(float)
+        key, (len(PROTOCOLS), groups, participants, populations.N_NORMALS), jnp.result_type(float)
     )
     return Calibration(
         _stack([stimuli[name] for name in PROTOCOLS]),
-        _stack([obs.POPULATIONS[name] for name in PROTOCOLS]),
+        _stack([populations.POPULATIONS[name] for name in PROTOCOLS]),
         normals,
     )
 
@@ -227,12 +228,12 @@ def expected_shift(stimuli, population, normals):
     """Mean over groups of the median true-PSE shift, log10 units.
 
     ``normals (G, N, N_NORMALS)`` give ``G`` groups of ``N`` observers
-    (:func:`~jaxadapt.psychophysics.observer.observers_from_normals`); per
+    (:func:`~jaxadapt.psychophysics.population.observers_from_normals`); per
     group ``median_n PSE_manipulated - median_n PSE_control`` of their true
     PSEs (:func:`~jaxadapt.psychophysics.observer.true_pse`). Differentiable
     with respect to the population.
     """
-    observers = obs.observers_from_normals(population, normals)
+    observers = populations.observers_from_normals(population, normals)
     pse = jax.vmap(jax.vmap(obs.true_pse, (None, 0)), (None, 0))(stimuli, observers)
     # conditions ("control", "manipulated"), as render_stimuli requires
     return jnp.mean(stats.median(pse[..., 1]) - stats.median(pse[..., 0]))
@@ -364,7 +365,7 @@ def main():
                 jax.random.fold_in(key, PROTOCOLS.index(name)),
                 protocols[name],
                 stimuli[name],
-                with_weights(obs.POPULATIONS[name], weights.vector()),
+                with_weights(populations.POPULATIONS[name], weights.vector()),
                 count,
             )
             for name in names

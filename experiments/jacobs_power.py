@@ -14,7 +14,7 @@ afterimage cue made strong enough to brighten the test by 0.13 log units
 (could the paper's design see an afterimage effect as large as the
 mesopic one?), and, for comparison, by the 0.02 log units the paper
 measured (could it see that?). Observers come from the protocol's default population
-(:data:`jaxadapt.psychophysics.observer.POPULATIONS`) with the cue weights
+(:data:`jaxadapt.psychophysics.population.POPULATIONS`) with the cue weights
 set for the shift (:func:`jaxadapt.psychophysics.observer.weights_for_pse`)
 and a between-observer spread of half their mean. Each cell runs many
 simulated experiments; the experiments of different cells of one
@@ -35,7 +35,9 @@ from matplotlib.ticker import NullLocator
 
 from jaxadapt.io import csv_writer
 from jaxadapt.psychophysics import design, psychometric, stats
+from jaxadapt.psychophysics import experiment as simulated
 from jaxadapt.psychophysics import observer as obs
+from jaxadapt.psychophysics import population as populations
 
 SHIFT = 0.13
 #: (protocol, relative cue weights, median PSE shift in log10 units): the
@@ -72,7 +74,7 @@ def pool(key, protocol, stimuli, population, n):
     pse, excluded = [], []
     chunk = min(CHUNK, n)
     for i in range(-(-n // chunk)):
-        e = obs.simulate(jax.random.fold_in(key, i), protocol, stimuli, population, chunk)
+        e = simulated.simulate(jax.random.fold_in(key, i), protocol, stimuli, population, chunk)
         n_yes, n_total = design.counts(protocol, e.trials, e.responses)
         pse.append(np.asarray(psychometric.fit(protocol.levels, n_yes, n_total).pse))
         excluded.append(np.asarray(e.excluded))
@@ -113,7 +115,9 @@ def main():
             stimuli[name] = obs.render_stimuli(protocol, key=k_render, **sizes[name])
         weights = obs.weights_for_pse(stimuli[name], jnp.asarray(direction), shift)
         population = dataclasses.replace(
-            obs.POPULATIONS[name], weights=weights, weight_spread=WEIGHT_SPREAD * jnp.abs(weights)
+            populations.POPULATIONS[name],
+            weights=weights,
+            weight_spread=WEIGHT_SPREAD * jnp.abs(weights),
         )
         for r in repetitions:
             variant = with_repetitions(protocol, r)

@@ -36,8 +36,10 @@ from scipy.stats import mannwhitneyu
 
 from jaxadapt import figures
 from jaxadapt.color import W_PHOTOPIC
-from jaxadapt.psychophysics import design, psychometric, stats, trials
+from jaxadapt.psychophysics import design, fit_table, psychometric, stats
+from jaxadapt.psychophysics import experiment as simulated
 from jaxadapt.psychophysics import observer as obs
+from jaxadapt.psychophysics import population as populations
 
 #: §4.1.2 and §4.2.2: median manipulated PSE (log10 units) and rank-sum p.
 PAPER = {
@@ -54,7 +56,9 @@ def population(name, stimuli):
     paper = PAPER[name]
     weights = obs.weights_for_pse(stimuli, jnp.asarray(paper["direction"]), paper["median_pse"])
     return dataclasses.replace(
-        obs.POPULATIONS[name], weights=weights, weight_spread=WEIGHT_SPREAD * jnp.abs(weights)
+        populations.POPULATIONS[name],
+        weights=weights,
+        weight_spread=WEIGHT_SPREAD * jnp.abs(weights),
     )
 
 
@@ -131,13 +135,15 @@ def main():
         stimuli = obs.stimuli_from_displays(protocol, displays[name])
         pop = population(name, stimuli)
         # All replications in one call; the first is the experiment shown.
-        everyone = obs.simulate(k_sim, protocol, stimuli, pop, n_replications * PARTICIPANTS)
+        everyone = simulated.simulate(k_sim, protocol, stimuli, pop, n_replications * PARTICIPANTS)
         experiment = jax.tree.map(lambda a: a[:PARTICIPANTS], everyone)
-        groups = obs.groups(protocol, experiment)
+        groups = simulated.groups(protocol, experiment)
         # Every simulated participant enters the medians and the test below,
         # with the prior's PSE where the data fix none, as the replications do.
-        table = trials.fit_groups(groups, key=k_boot, n_resamples=resamples, keep_undetermined=True)
-        trials.write_fits(out / f"{name}_fits.csv", table)
+        table = fit_table.fit_groups(
+            groups, key=k_boot, n_resamples=resamples, keep_undetermined=True
+        )
+        fit_table.write_fits(out / f"{name}_fits.csv", table)
         condition = np.asarray(table.condition)
         c = stats.compare(
             jnp.asarray(table.pse[condition == "manipulated"]),

@@ -252,7 +252,7 @@ def plot_psychometric(path, groups, table, columns=4):
     ----------
     groups : jaxadapt.psychophysics.trials.Groups
         Counts per (participant, condition).
-    table : jaxadapt.psychophysics.trials.FitTable
+    table : jaxadapt.psychophysics.fit_table.FitTable
         Their fits.
     """
     from scipy.special import ndtr
@@ -306,7 +306,7 @@ def plot_pse(path, table, tests=()):
     confidence intervals, the medians, and the group tests' p-values.
 
     The axis spans the PSEs (and 0). A group whose data do not determine
-    its fit (:func:`jaxadapt.psychophysics.trials.undetermined`) is drawn
+    its fit (:func:`jaxadapt.psychophysics.separation.undetermined`) is drawn
     hollow: where its PSE is NaN, as the interval of levels the data leave
     for it (a bar between two levels, or a triangle at the level it lies
     beyond); where it was kept (the prior's), at that PSE, on the axis'
@@ -314,7 +314,7 @@ def plot_pse(path, table, tests=()):
     PSEs the group test takes. ``tests`` are the rows of
     ``group_test.csv``. Returns the figure, saved to ``path``.
     """
-    from jaxadapt.psychophysics.trials import undetermined
+    from jaxadapt.psychophysics.separation import undetermined
 
     conditions = list(dict.fromkeys(table.condition))
     pse = np.asarray(table.pse, float)

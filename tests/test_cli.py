@@ -961,12 +961,12 @@ def test_psychometric_fit_refuses_its_options_before_fitting(tmp_path, capsys, m
     # were found after the whole fit (28 s on a simulated experiment);
     # --seed without a bootstrap, and --ranksum without a group test, were
     # ignored. Now each is refused before any fit.
-    from jaxadapt.psychophysics import trials as trial_tables
+    from jaxadapt.psychophysics import fit_table
 
     def no_fit(*args, **kwargs):
         raise AssertionError("fitted before refusing")
 
-    monkeypatch.setattr(trial_tables, "fit_groups", no_fit)
+    monkeypatch.setattr(fit_table, "fit_groups", no_fit)
     rows = ["participant,condition,level,n_yes,n_total"]
     rows += [f"p{i},{c},{x},1,2" for i in range(170) for c in ("control", "m") for x in (0, 1)]
     table = tmp_path / "trials.csv"
@@ -986,12 +986,12 @@ def test_psychometric_fit_refuses_its_options_before_fitting(tmp_path, capsys, m
 
 def test_out_of_memory_names_what_to_make_smaller(tmp_path, capsys, monkeypatch):
     # It said "try a smaller --chunk or --size" to psychometric fit too.
-    from jaxadapt.psychophysics import trials as trial_tables
+    from jaxadapt.psychophysics import fit_table
 
     def exhausted(*args, **kwargs):
         raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 9 bytes.")
 
-    monkeypatch.setattr(trial_tables, "fit_groups", exhausted)
+    monkeypatch.setattr(fit_table, "fit_groups", exhausted)
     table = tmp_path / "trials.csv"
     table.write_text("condition,level,n_yes,n_total\ncontrol,0,1,2\ncontrol,1,2,2\nm,0,1,2\n")
     status, err = _run(capsys, "psychometric", "fit", str(table), "--out", str(tmp_path / "o"))
@@ -1128,7 +1128,7 @@ def test_pse_figure_spans_the_placed_pses(tmp_path):
     # axis run to -7e5 and flattened every other PSE onto 0.
     from jaxadapt import figures
     from jaxadapt.psychophysics import psychometric
-    from jaxadapt.psychophysics.trials import FitTable
+    from jaxadapt.psychophysics.fit_table import FitTable
 
     pse = np.array([-7.3e5, 0.02, -0.05, 0.12, 0.08, 0.1])
     flags = np.array([psychometric.ALL_SAME, 0, 0, 0, 0, 0])

@@ -19,6 +19,7 @@ import pytest
 
 from jaxadapt.psychophysics import design
 from jaxadapt.psychophysics import observer as O  # noqa: N812
+from jaxadapt.psychophysics import population as Pop  # noqa: N812
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 import fit_cue_weights as F  # noqa: E402, N812
@@ -107,7 +108,7 @@ def test_whole_experiments_agree_with_the_model():
     # closed-form weights: their median shifts centre on the target within
     # four standard errors of the median of 200 (1.25 sd / sqrt(200)).
     a, s = np.linalg.solve(closed_form(), TARGETS)
-    population = F.with_weights(O.POPULATIONS["afterimage"], F.CueWeights(a, s).vector())
+    population = F.with_weights(Pop.POPULATIONS["afterimage"], F.CueWeights(a, s).vector())
     result = F.simulate_shifts(
         jax.random.key(2), design.AFTERIMAGE, STIMULI["afterimage"], population, 200
     )

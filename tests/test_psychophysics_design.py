@@ -12,7 +12,7 @@ import scipy.stats
 from hypothesis import given
 from hypothesis import strategies as st
 
-from jaxadapt.psychophysics import design, trials
+from jaxadapt.psychophysics import design, fit_table, separation, trials
 from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 A, M = design.AFTERIMAGE, design.MESOPIC
@@ -389,11 +389,11 @@ def test_fit_groups_writes_fits_csv(tmp_path):
                 ]
             )
     source, out = _write(tmp_path / "t.csv", rows), tmp_path / "fits.csv"
-    trials.fit_file(source, out, key=jax.random.key(9), n_resamples=200)
+    fit_table.fit_file(source, out, key=jax.random.key(9), n_resamples=200)
     groups = trials.group_trials(trials.read_trials(source))
     with open(out, newline="") as file:
         written = list(csv.DictReader(file))
-    assert list(written[0]) == list(trials.FIT_COLUMNS)
+    assert list(written[0]) == list(fit_table.FIT_COLUMNS)
     assert [(r["participant"], r["condition"]) for r in written] == list(
         zip(groups.participant, groups.condition, strict=True)
     )
@@ -402,12 +402,12 @@ def test_fit_groups_writes_fits_csv(tmp_path):
     np.testing.assert_array_equal(groups.n_yes, np.asarray(n_yes).reshape(shape))
     np.testing.assert_array_equal(groups.n_total, np.asarray(n_total).reshape(shape))
     np.testing.assert_allclose(groups.levels, np.broadcast_to(A.levels, shape), atol=1e-12)
-    wald = trials.fit_groups(groups, key=None, n_resamples=0)
+    wald = fit_table.fit_groups(groups, key=None, n_resamples=0)
     np.testing.assert_allclose(wald.ci_high - wald.pse, 1.959964 * wald.se_pse, rtol=1e-6)
     with pytest.raises(
         ValueError, match=r"^n_resamples: expected 0 \(Wald intervals\) or at least 2"
     ):
-        trials.fit_groups(groups, key=jax.random.key(0), n_resamples=1)
+        fit_table.fit_groups(groups, key=jax.random.key(0), n_resamples=1)
     for r, pse in zip(written, wald.pse, strict=True):
         assert float(r["pse"]) == float(pse)  # not str's 12 digits (colour's printing)
         assert float(r["ci_low"]) < float(r["pse"]) < float(r["ci_high"])
@@ -433,9 +433,9 @@ def test_tables_of_sizes_in_one_batch_size_share_one_compiled_fit(count_calls):
         )
 
     traces = count_calls(F, "_fit_batch")
-    first = trials.fit_groups(groups(5), key=None, n_resamples=0)
+    first = fit_table.fit_groups(groups(5), key=None, n_resamples=0)
     before = len(traces)
-    tables = [trials.fit_groups(groups(count), key=None, n_resamples=0) for count in (6, 7)]
+    tables = [fit_table.fit_groups(groups(count), key=None, n_resamples=0) for count in (6, 7)]
     assert len(traces) == before  # 5, 6 and 7 groups: one batch of 8
     for table in (first, *tables):
         count = table.pse.size
@@ -457,7 +457,7 @@ def test_fit_groups_keeps_the_intervals_in_the_fits_dtype():
         np.full((2, 3), 30.0),
     )
     with jax.enable_x64(False):
-        table = trials.fit_groups(groups, key=None, n_resamples=0)
+        table = fit_table.fit_groups(groups, key=None, n_resamples=0)
     assert table.pse.dtype == table.ci_low.dtype == table.ci_high.dtype == np.float32
     assert table.ci_low[0] <= 0.0 and table.ci_high[0] >= 0.3  # the gap of p1's separation
 
@@ -478,8 +478,8 @@ def test_the_sigma_bound_drops_the_profile_likelihood_by_the_chi2_quantile():
         z = (x - pse) / sigma
         return np.max(np.sum(k * log_ndtr(z) + (n - k) * log_ndtr(-z), axis=1))
 
-    bound = trials.sigma_bound(x, k, n)
+    bound = separation.sigma_bound(x, k, n)
     assert profile(1e-6) - profile(bound) == pytest.approx(3.841458820694124 / 2, abs=1e-4)
-    assert trials.sigma_bound(-x, k, n) == pytest.approx(bound, rel=1e-6)
+    assert separation.sigma_bound(-x, k, n) == pytest.approx(bound, rel=1e-6)
     # Complete separation on one trial a level rejects no sigma.
-    assert trials.sigma_bound(x[:2], [0, 1], [1, 1]) == np.inf
+    assert separation.sigma_bound(x[:2], [0, 1], [1, 1]) == np.inf

@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 
 from jaxadapt.psychophysics import design, trials
+from jaxadapt.psychophysics import experiment as E  # noqa: N812
 from jaxadapt.psychophysics import observer as O  # noqa: N812
+from jaxadapt.psychophysics import population as Pop  # noqa: N812
 from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 A, M = design.AFTERIMAGE, design.MESOPIC
@@ -65,7 +67,7 @@ def test_an_observer_without_cues_is_recovered_by_the_fit():
     # 400 copies of one observer: pooled, 60,000 trials per condition of
     # exactly binomial data with P(x) = Phi((x + bias) / noise).
     observer = O.Observer(noise=0.15, bias=0.05)
-    experiment = O.simulate_observers(
+    experiment = E.simulate_observers(
         jax.random.key(1), A, O.plain_stimuli(A), identical(observer, 400)
     )
     f = pooled_fit(A, experiment)
@@ -74,7 +76,7 @@ def test_an_observer_without_cues_is_recovered_by_the_fit():
     np.testing.assert_array_less(np.abs(f.sigma - 0.15), 4 * f.se_sigma)  # sigma = noise
     assert np.all(f.se_pse < 0.003)  # the test has power: 4 se < 0.012 log units
     # and an observer with a different bias is told apart
-    other = O.simulate_observers(
+    other = E.simulate_observers(
         jax.random.key(1), A, O.plain_stimuli(A), identical(O.Observer(noise=0.15), 400)
     )
     assert np.all(np.abs(pooled_fit(A, other).pse - f.pse) > 8 * f.se_pse)
@@ -84,7 +86,7 @@ def test_lapses_and_order_bias_give_the_expected_frequencies():
     observer = O.Observer(noise=0.1, bias=0.02, order_bias=0.08, lapse=0.1)
     stimuli = O.plain_stimuli(A)
     # 400 observers: the batch of the test above (one compilation)
-    e = O.simulate_observers(jax.random.key(2), A, stimuli, identical(observer, 400))
+    e = E.simulate_observers(jax.random.key(2), A, stimuli, identical(observer, 400))
     t = jax.tree.map(np.asarray, e.trials)
     r = np.asarray(e.responses)
     for first in (True, False):
@@ -117,7 +119,7 @@ def test_lapses_and_order_bias_give_the_expected_frequencies():
 
 
 def test_population_draws_have_the_documented_distribution():
-    pop = O.Population(
+    pop = Pop.Population(
         noise=0.2,
         noise_spread=0.4,
         bias=0.01,
@@ -128,7 +130,7 @@ def test_population_draws_have_the_documented_distribution():
         weight_spread=(0.0, 0.05, 0.0),
     )
     n = 4000
-    o = jax.tree.map(np.asarray, O.draw_observers(jax.random.key(3), pop, n))
+    o = jax.tree.map(np.asarray, Pop.draw_observers(jax.random.key(3), pop, n))
     half = 4 * np.sqrt(0.25 / n)  # binomial tolerance of a fraction of 1/2
     assert abs(np.mean(o.noise < 0.2) - 0.5) < half  # median noise
     assert abs(np.mean(o.lapse < 0.03) - 0.5) < half  # median lapse
@@ -138,21 +140,21 @@ def test_population_draws_have_the_documented_distribution():
     assert np.all(o.weights[:, [0, 2]] == 0) and np.all(o.order_bias == 0)
     assert np.all((o.lapse > 0) & (o.lapse < 1) & (o.noise > 0))
     # observer i does not depend on how many are drawn
-    few = O.draw_observers(jax.random.key(3), pop, 3)
+    few = Pop.draw_observers(jax.random.key(3), pop, 3)
     for a, b in zip(jax.tree.leaves(few), jax.tree.leaves(o), strict=True):
         np.testing.assert_array_equal(a, b[:3])
 
 
 def test_population_parameters_are_differentiable():
-    z = jax.random.normal(jax.random.key(4), (50, O.N_NORMALS))
+    z = jax.random.normal(jax.random.key(4), (50, Pop.N_NORMALS))
     stimuli = O.plain_stimuli(A)
 
     @jax.jit
     def mean_p(pop):
-        observers = O.observers_from_normals(pop, z)
+        observers = Pop.observers_from_normals(pop, z)
         return jnp.mean(jax.vmap(lambda o: O.probability(stimuli, o)[0, 3])(observers))
 
-    pop = O.POPULATIONS["afterimage"]
+    pop = Pop.POPULATIONS["afterimage"]
     grad = jax.grad(mean_p)(pop)
     eps = 1e-6
     for name in ("noise", "bias", "lapse"):
@@ -205,7 +207,7 @@ def test_a_cue_weight_moves_the_pse_the_way_its_sign_says(afterimage_stimuli, me
         # the expected counts (cues that change with the level bend P(x)
         # away from a cumulative Gaussian), within the fit's sampling error;
         # 400 observers, as in the first test (one compilation for both)
-        e = O.simulate_observers(jax.random.key(5), protocol, s, identical(observer, 400))
+        e = E.simulate_observers(jax.random.key(5), protocol, s, identical(observer, 400))
         f = pooled_fit(protocol, e)
         _, n_total = design.counts(protocol, e.trials, e.responses)
         n = n_total.sum(0)
@@ -245,12 +247,12 @@ def test_true_pse_has_the_implicit_gradient_and_weights_for_pse_inverts_it(mesop
 @pytest.mark.slow
 def test_the_vmapped_experiment_equals_a_loop_of_observers():
     stimuli = O.plain_stimuli(A)
-    observers = O.draw_observers(jax.random.key(6), O.POPULATIONS["afterimage"], 3)
+    observers = Pop.draw_observers(jax.random.key(6), Pop.POPULATIONS["afterimage"], 3)
     key = jax.random.key(7)
-    batch = O.simulate_observers(key, A, stimuli, observers)
+    batch = E.simulate_observers(key, A, stimuli, observers)
     for i in range(3):
         one = jax.tree.map(lambda a, i=i: a[i], observers)
-        t, r = O.run_observer(jax.random.fold_in(key, i), A, stimuli, one)
+        t, r = E.run_observer(jax.random.fold_in(key, i), A, stimuli, one)
         np.testing.assert_array_equal(r, batch.responses[i])
         for a, b in zip(t, batch.trials, strict=True):
             np.testing.assert_array_equal(a, b[i])
@@ -261,12 +263,12 @@ def test_the_vmapped_experiment_equals_a_loop_of_observers():
 @pytest.mark.slow
 def test_same_key_same_experiment_and_observers_do_not_depend_on_their_number():
     # 12 observers, as the round trip below, and 4, as the doctest of
-    # O.simulate: the test suite compiles each experiment once.
-    stimuli, pop = O.plain_stimuli(A), O.POPULATIONS["afterimage"]
-    a = O.simulate(jax.random.key(8), A, stimuli, pop, 12)
-    b = O.simulate(jax.random.key(8), A, stimuli, pop, 12)
-    few = O.simulate(jax.random.key(8), A, stimuli, pop, 4)
-    other = O.simulate(jax.random.key(9), A, stimuli, pop, 12)
+    # E.simulate: the test suite compiles each experiment once.
+    stimuli, pop = O.plain_stimuli(A), Pop.POPULATIONS["afterimage"]
+    a = E.simulate(jax.random.key(8), A, stimuli, pop, 12)
+    b = E.simulate(jax.random.key(8), A, stimuli, pop, 12)
+    few = E.simulate(jax.random.key(8), A, stimuli, pop, 4)
+    other = E.simulate(jax.random.key(9), A, stimuli, pop, 12)
     for x, y, z in zip(jax.tree.leaves(a), jax.tree.leaves(b), jax.tree.leaves(few), strict=True):
         np.testing.assert_array_equal(x, y)
         np.testing.assert_array_equal(x[:4], z)
@@ -276,18 +278,18 @@ def test_same_key_same_experiment_and_observers_do_not_depend_on_their_number():
 
 def test_trial_tables_round_trip_through_the_reader(tmp_path):
     # noisy observers, so that some fail the training criterion
-    pop = dataclasses.replace(O.POPULATIONS["afterimage"], noise=0.6)
-    e = O.simulate(jax.random.key(10), A, O.plain_stimuli(A), pop, 12)
+    pop = dataclasses.replace(Pop.POPULATIONS["afterimage"], noise=0.6)
+    e = E.simulate(jax.random.key(10), A, O.plain_stimuli(A), pop, 12)
     excluded = np.asarray(e.excluded)
     assert 0 < excluded.sum() < 12
     path = tmp_path / "trials.csv"
-    rows = O.write_trials(path, A, e)
+    rows = E.write_trials(path, A, e)
     assert rows == (12 - excluded.sum()) * 300  # training trials left out
     groups = trials.group_trials(trials.read_trials(path))
-    expected = O.groups(A, e)
+    expected = E.groups(A, e)
     assert groups.participant == expected.participant
     assert groups.condition == expected.condition
-    names = O.participant_names(12)
+    names = E.participant_names(12)
     assert set(groups.participant) == {n for n, x in zip(names, excluded, strict=True) if not x}
     np.testing.assert_array_equal(groups.levels, expected.levels)
     np.testing.assert_array_equal(groups.n_yes, expected.n_yes)
@@ -299,7 +301,7 @@ def test_bad_inputs_are_named():
     # A population of negative noise drew observers of negative noise.
     for field, value in (("noise", -1.0), ("lapse", 1.0), ("noise_spread", -0.1)):
         with pytest.raises(ValueError, match=f"^Population.{field}: expected"):
-            O.Population(**{field: value})
+            Pop.Population(**{field: value})
     # A display shows whole frames: 50 ms at 30 fps is 1.5 of them.
     for fps, lead, match in ((30.0, 0.25, "protocol.presentation_s"), (40.0, 0.26, "lead_s")):
         with pytest.raises(ValueError, match=f"^{match}: expected a whole number"):
@@ -312,17 +314,17 @@ def test_bad_inputs_are_named():
     with pytest.raises(ValueError, match=r"^Observer.weights: expected one value per cue"):
         O.Observer(weights=jnp.ones(2))
     with pytest.raises(ValueError, match=r"^Population.weight_spread: expected one value per cue"):
-        O.Population(weight_spread=0.1)
+        Pop.Population(weight_spread=0.1)
     with pytest.raises(ValueError, match="n_observers"):
-        O.simulate(jax.random.key(0), A, O.plain_stimuli(A), O.Population(), 0)
+        E.simulate(jax.random.key(0), A, O.plain_stimuli(A), Pop.Population(), 0)
     with pytest.raises(ValueError, match="protocol"):
         O.render_stimuli(dataclasses.replace(A, name="other"), key=jax.random.key(0))
     with pytest.raises(ValueError, match="observers"):
-        O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), O.Observer())
+        E.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), O.Observer())
     for bad in (O.Observer(noise=0.0), O.Observer(lapse=1.0), O.Observer(noise=jnp.nan)):
         with pytest.raises(ValueError, match="^observers: expected noise > 0"):
             # 3 observers: the batch of the vmapped experiment above (one compilation)
-            O.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 3))
+            E.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 3))
         # probability itself gave 0/0 = NaN (noise 0) or values beyond [0, 1].
         with pytest.raises(ValueError, match="^observer: expected noise > 0"):
             O.probability(O.plain_stimuli(A), bad)

@@ -18,6 +18,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.stats import norm
 
+from jaxadapt.psychophysics import bootstrap as Boot  # noqa: N812
 from jaxadapt.psychophysics import psychometric as F  # noqa: N812
 
 #: The afterimage experiment's tests, log10 relative to the 27 cd/m2 standard.
@@ -224,13 +225,13 @@ def test_bad_input_is_named():
         with pytest.raises(ValueError, match=rf"^max_steps: expected at least 1, got {steps}"):
             F.fit(X, np.zeros(5), 30, max_steps=steps)
     with pytest.raises(ValueError, match="method: expected one of"):
-        F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, method="bca")
+        Boot.bootstrap(jax.random.key(0), X, np.zeros(5), 30, method="bca")
     # No levels gave ZeroDivisionError; 2.5 resamples ran 2.
     with pytest.raises(ValueError, match=r"levels: expected .* got shape \(0,\), no levels"):
         F.fit(np.zeros(0), np.zeros(0), np.zeros(0))
     for bad in (2.5, True, 1):
         with pytest.raises(ValueError, match="n_resamples: expected a whole number >= 2"):
-            F.bootstrap(jax.random.key(0), X, np.zeros(5), 30, n_resamples=bad)
+            Boot.bootstrap(jax.random.key(0), X, np.zeros(5), 30, n_resamples=bad)
     import equinox as eqx
 
     # The message is the error's first line (an EquinoxRuntimeError began with
@@ -241,7 +242,7 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match="^levels: expected finite"):
         F.fit(np.r_[X[:4], np.nan], np.zeros(5), 30)
     with pytest.raises(ValueError, match="^levels: expected finite"):
-        F.bootstrap(jax.random.key(0), np.r_[X[:4], np.nan], np.zeros(5), 30, n_resamples=2)
+        Boot.bootstrap(jax.random.key(0), np.r_[X[:4], np.nan], np.zeros(5), 30, n_resamples=2)
     with pytest.raises(eqx.EquinoxRuntimeError, match="levels: expected finite"):
         eqx.filter_jit(lambda x: F.fit(x, np.zeros(5), 30).pse)(np.r_[X[:4], np.nan])
 
@@ -270,9 +271,9 @@ def test_bootstrap_intervals_cover_the_true_pse_and_are_deterministic():
     n = np.full((batches, B, 5), 30)
     k = rng.binomial(n, norm.cdf((X - mu) / sigma))
     k[0, 1] = k[0, 0]
-    for method in F.METHODS:
+    for method in Boot.METHODS:
         boots = [
-            F.bootstrap(jax.random.key(i), X, k[i], n[i], n_resamples=200, method=method)
+            Boot.bootstrap(jax.random.key(i), X, k[i], n[i], n_resamples=200, method=method)
             for i in range(batches)
         ]
         low, high = np.concatenate([b.pse_ci for b in boots]).T
@@ -284,7 +285,7 @@ def test_bootstrap_intervals_cover_the_true_pse_and_are_deterministic():
         assert np.all(np.isfinite(low) & np.isfinite(high))
         assert np.mean([b.flagged for b in boots]) < 0.05  # resamples with separated data
         assert not np.array_equal(low[0], low[1])  # each dataset has its own resamples
-    again = F.bootstrap(jax.random.key(2), X, k[2], n[2], n_resamples=200, method=method)
+    again = Boot.bootstrap(jax.random.key(2), X, k[2], n[2], n_resamples=200, method=method)
     np.testing.assert_array_equal(again.pse_ci, boots[2].pse_ci)
     np.testing.assert_array_equal(again.fit.pse, F.fit(X, k[2], n[2]).pse)
 
@@ -300,12 +301,12 @@ def test_the_bootstrap_in_batches_gives_the_one_call_result():
     rng = np.random.default_rng(3)
     n = np.full((2, 3, 5), 30)
     k = rng.binomial(n, norm.cdf((X - 0.02) / 0.15))
-    whole = F.bootstrap(jax.random.key(5), X, k, n, n_resamples=50)
+    whole = Boot.bootstrap(jax.random.key(5), X, k, n, n_resamples=50)
     done = []
-    parts = F.bootstrap(
-        jax.random.key(5), X, k, n, n_resamples=50, budget=20 * F.FIT_BYTES, progress=done.append
+    parts = Boot.bootstrap(
+        jax.random.key(5), X, k, n, n_resamples=50, budget=20 * Boot.FIT_BYTES, progress=done.append
     )
-    assert F.bootstrap_blocks(6, 50, 20 * F.FIT_BYTES) == (1, 20)
+    assert Boot.bootstrap_blocks(6, 50, 20 * Boot.FIT_BYTES) == (1, 20)
     assert done == [1] * 6
     assert whole.pse_ci.shape == (2, 3, 2)
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(parts), strict=True):
@@ -318,11 +319,11 @@ def test_the_bootstrap_in_batches_gives_the_one_call_result():
 BOOTSTRAPS = """
 import resource, jax, numpy as np
 jax.config.update("jax_enable_x64", True)
-from jaxadapt.psychophysics import psychometric as F
+from jaxadapt.psychophysics import bootstrap as Boot
 for D in (16, 1024):
     k = np.tile([2.0, 6, 10, 14, 18], (D, 1))
-    b = F.bootstrap(jax.random.key(0), np.linspace(-0.3, 0.3, 5), k, 20.0,
-                    n_resamples=100, budget=1600 * F.FIT_BYTES)
+    b = Boot.bootstrap(jax.random.key(0), np.linspace(-0.3, 0.3, 5), k, 20.0,
+                    n_resamples=100, budget=1600 * Boot.FIT_BYTES)
     jax.block_until_ready(b)
     print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 """

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from jaxadapt.psychophysics import psychometric as F  # noqa: N812
+from jaxadapt.psychophysics import sharding as S  # noqa: N812
 
 #: End-to-end or long: left out of the quick run (pytest -m "not slow").
 pytestmark = pytest.mark.slow
@@ -29,12 +30,12 @@ SCRIPT = textwrap.dedent(
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     import numpy as np
-    from jaxadapt.psychophysics import psychometric as F
+    from jaxadapt.psychophysics import sharding as S
 
     with open(sys.argv[1]) as file:
         data = json.load(file)
     x, k = jnp.array(data["x"]), jnp.array(data["k"])
-    sharded = F.fit_sharded(x, k, 30)
+    sharded = S.fit_sharded(x, k, 30)
     print(json.dumps({
         "devices": jax.device_count(),
         "shape": list(sharded.pse.shape),
@@ -84,7 +85,7 @@ def test_eight_cpu_devices_give_the_single_device_fits(tmp_path):
 
 
 def test_map_sharded_pads_and_unpads_and_names_bad_batches():
-    out = F.map_sharded(lambda a, b: a * 2 + b.sum(axis=-1), jnp.arange(3.0), jnp.ones((3, 5)))
+    out = S.map_sharded(lambda a, b: a * 2 + b.sum(axis=-1), jnp.arange(3.0), jnp.ones((3, 5)))
     np.testing.assert_array_equal(out, [5.0, 7.0, 9.0])
     with pytest.raises(ValueError, match="args: expected a common leading batch axis"):
-        F.map_sharded(lambda a, b: a, jnp.ones(3), jnp.ones((4, 5)))
+        S.map_sharded(lambda a, b: a, jnp.ones(3), jnp.ones((4, 5)))

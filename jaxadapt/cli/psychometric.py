@@ -135,7 +135,7 @@ def fit(args, console):
     from rich.progress import Progress
 
     from jaxadapt import figures, io
-    from jaxadapt.psychophysics import stats, trials
+    from jaxadapt.psychophysics import fit_table, stats, trials
 
     if args.resamples < 0 or args.resamples == 1:
         raise UsageError(
@@ -188,7 +188,7 @@ def fit(args, console):
             count = len(groups.participant)
             task = bar.add_task(f"fitting {count} group{'s' * (count > 1)}", total=count)
             key = jax.random.key(args.seed or 0)
-            table = trials.fit_groups(
+            table = fit_table.fit_groups(
                 groups,
                 key=key,
                 n_resamples=args.resamples,
@@ -197,7 +197,7 @@ def fit(args, console):
             )
             rows = stats.group_tests(table, control, method)
         _warn_undetermined(console, groups, table, args.keep_undetermined, bool(rows))
-        trials.write_fits(staging / "fits.csv", table)
+        fit_table.write_fits(staging / "fits.csv", table)
         if rows:
             with open(staging / "group_test.csv", "w", newline="") as f:
                 writer = io.csv_writer(f, stats.GROUP_TEST_COLUMNS)
@@ -229,11 +229,11 @@ def _warn_undetermined(console, groups, table, kept, tested):
     """Say which groups' data do not determine their fit: those that place
     no PSE (every response the same, one level, or no slope) and those whose
     levels separate the responses, whose PSE lies somewhere between two
-    levels (:func:`~jaxadapt.psychophysics.trials.fit_groups`); and whether
+    levels (:func:`~jaxadapt.psychophysics.fit_table.fit_groups`); and whether
     the group test (``tested``) left them out or, with
     ``--keep-undetermined`` (``kept``), took the fit's prior-set PSEs."""
     from jaxadapt.psychophysics import psychometric
-    from jaxadapt.psychophysics.trials import undetermined
+    from jaxadapt.psychophysics.separation import undetermined
 
     flags = np.asarray(table.flags)
     written = "are its prior's, not the data's" if kept else "are NaN"
@@ -306,7 +306,9 @@ def simulate(args, console):
 
     from jaxadapt import io
     from jaxadapt.psychophysics import design
+    from jaxadapt.psychophysics import experiment as simulated
     from jaxadapt.psychophysics import observer as obs
+    from jaxadapt.psychophysics import population as populations
     from jaxadapt.psychophysics.trials import csv_cell
 
     if args.protocol not in design.PROTOCOLS:
@@ -317,16 +319,16 @@ def simulate(args, console):
         raise UsageError(f"--observers: expected a positive number, got {args.observers}")
     protocol = design.PROTOCOLS[args.protocol]
     population = dataclasses.replace(
-        obs.POPULATIONS[args.protocol], weights=_weights(args.weight, obs.CUES)
+        populations.POPULATIONS[args.protocol], weights=_weights(args.weight, obs.CUES)
     )
     # --out is checked (and staged) before the minutes of simulating
     with _staged(args.out, console) as staging:
         render_key, simulate_key = jax.random.split(jax.random.key(args.seed))
         stimuli = obs.render_stimuli(protocol, key=render_key)
-        experiment = obs.simulate(simulate_key, protocol, stimuli, population, args.observers)
+        experiment = simulated.simulate(simulate_key, protocol, stimuli, population, args.observers)
         pse = np.asarray(jax.vmap(lambda o: obs.true_pse(stimuli, o))(experiment.observers))
         observers = {
-            "participant": obs.participant_names(args.observers),
+            "participant": simulated.participant_names(args.observers),
             **{
                 name: np.asarray(getattr(experiment.observers, name))
                 for name in ("noise", "bias", "order_bias", "lapse")
@@ -339,7 +341,7 @@ def simulate(args, console):
             "excluded": np.asarray(experiment.excluded),
         }
         d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
-        n_rows = obs.write_trials(staging / "trials.csv", protocol, experiment)
+        n_rows = simulated.write_trials(staging / "trials.csv", protocol, experiment)
         with open(staging / "observers.csv", "w", newline="") as f:
             writer = io.csv_writer(f)
             writer.writerow(observers)

@@ -203,7 +203,7 @@ def write_trials(path, protocol, experiment):
 def groups(protocol, experiment):
     """Counts of the included observers per condition and level, as the
     :class:`jaxadapt.psychophysics.trials.Groups` that
-    :func:`jaxadapt.psychophysics.trials.fit_groups` and the figures take
+    :func:`jaxadapt.psychophysics.fit_table.fit_groups` and the figures take
     (participant-major, conditions in the protocol's order)."""
     n_yes, n_total = design.counts(protocol, experiment.trials, experiment.responses)
     keep = ~np.asarray(experiment.excluded)

@@ -71,7 +71,6 @@ from jax.scipy.special import ndtr
 from jaxadapt._checks import float_array
 from jaxadapt.operators.checks import plain_errors
 from jaxadapt.psychophysics import design  # noqa: F401  (the examples)
-from jaxadapt.psychophysics._moved import forward
 from jaxadapt.psychophysics.displays import (  # noqa: F401  (as before their module)
     DISPLAYS,
     Displays,
@@ -340,26 +339,3 @@ def weights_for_pse(stimuli, direction, pse, condition=1, bias=0.0):
             f"got a difference of {float(along)}"
         )
     return -(lum + bias) / along * direction
-
-
-#: Names that moved to modules of their own, still found here.
-__getattr__ = forward(
-    __name__,
-    population=(
-        "N_NORMALS",
-        "POPULATIONS",
-        "Population",
-        "draw_observers",
-        "observers_from_normals",
-    ),
-    experiment=(
-        "Experiment",
-        "groups",
-        "participant_names",
-        "run_observer",
-        "simulate",
-        "simulate_observers",
-        "trial_table",
-        "write_trials",
-    ),
-)

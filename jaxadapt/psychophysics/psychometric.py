@@ -79,7 +79,6 @@ from jaxadapt.operators.checks import plain_errors
 from jaxadapt.psychophysics._bfgs import _solve
 from jaxadapt.psychophysics._inputs import _checked_inputs, _over_datasets
 from jaxadapt.psychophysics._likelihood import _nll, _objective, _prepare, _se, _unpack
-from jaxadapt.psychophysics._moved import forward
 from jaxadapt.psychophysics.flags import (  # noqa: F401  (the flags, as before their module)
     ALL_SAME,
     EXTRAPOLATED,
@@ -325,18 +324,3 @@ def fit(levels, n_yes, n_total, *, guess=0.0, lapse=0.0, max_steps=MAX_STEPS):
     (4, 7)
     """
     return _fit(*_checked_inputs(levels, n_yes, n_total, guess, lapse), max_steps)
-
-
-#: Names that moved to modules of their own, still found here.
-__getattr__ = forward(
-    __name__,
-    bootstrap=(
-        "BOOTSTRAP_BUDGET",
-        "Bootstrap",
-        "FIT_BYTES",
-        "METHODS",
-        "bootstrap",
-        "bootstrap_blocks",
-    ),
-    sharding=("fit_sharded", "map_sharded"),
-)

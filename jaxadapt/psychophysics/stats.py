@@ -484,7 +484,7 @@ def group_tests(table, control, method="auto"):
     place none) are left out. ``method`` is :func:`ranksum`'s.
     """
     condition = np.asarray(table.condition)
-    placed = np.isfinite(table.pse)  # NaN: the data place no PSE (trials.undetermined)
+    placed = np.isfinite(table.pse)  # NaN: the data place no PSE (separation.undetermined)
     pse = np.where(placed, table.pse, 0.0)
     rows = []
     for other in dict.fromkeys(table.condition):

@@ -31,8 +31,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxadapt.psychophysics._moved import forward
-
 #: Columns of a trial table with one row per trial.
 TRIAL_COLUMNS = ("participant", "condition", "level", "response")
 #: Columns of a trial table with counts.
@@ -320,11 +318,3 @@ def csv_cell(value):
     if isinstance(value, (float, np.floating)):
         return repr(float(np.format_float_positional(value, unique=True, trim="-")))
     return str(value)
-
-
-#: Names that moved to modules of their own, still found here.
-__getattr__ = forward(
-    __name__,
-    fit_table=("FIT_COLUMNS", "FitTable", "batch_size", "fit_file", "fit_groups", "write_fits"),
-    separation=("SIGMA_BOUND_LEVEL", "separating_gap", "sigma_bound", "undetermined"),
-)
