@@ -9,6 +9,7 @@ import OpenImageIO as oiio
 import pytest
 
 from jaxadapt import io, pipeline
+from jaxadapt.color import BT709_CHROMATICITIES
 
 
 def _gradient(height=4, width=3):
@@ -371,7 +372,7 @@ def test_primaries_conversion_keeps_luminance(tmp_path, space):
     path = tmp_path / "wide.exr"
     _write(path, colours, chromaticities=_PRIMARIES[space])
     image = io.read_hdr(path)
-    luminance = _luminance(image, io.BT709_CHROMATICITIES)
+    luminance = _luminance(image, BT709_CHROMATICITIES)
     expected = _luminance(colours, _PRIMARIES[space])
     greys = (colours == colours[..., :1]).all(axis=-1)
     d65 = _PRIMARIES[space][6:] == (0.3127, 0.3290)
@@ -388,7 +389,7 @@ def test_grey_and_bt709_files_are_not_converted(tmp_path):
     _write(grey, _colours()[..., :1], chromaticities=_PRIMARIES["ACES2065-1"])
     np.testing.assert_array_equal(io.read_hdr(grey), np.repeat(_colours()[..., :1], 3, -1))
     bt709 = tmp_path / "bt709.exr"
-    _write(bt709, _colours(), chromaticities=np.float32(io.BT709_CHROMATICITIES))
+    _write(bt709, _colours(), chromaticities=np.float32(BT709_CHROMATICITIES))
     np.testing.assert_array_equal(io.read_hdr(bt709), _colours())
 
 

@@ -12,6 +12,7 @@ PACKAGES = [
     "jaxadapt",
     "jaxadapt.fitting",
     "jaxadapt.operators",
+    "jaxadapt.io",
     "jaxadapt.physiology",
     "jaxadapt.psychophysics",
 ]
