@@ -16,6 +16,7 @@ import pytest
 import statsmodels.api as sm
 from hypothesis import given
 from hypothesis import strategies as st
+from scipy.optimize import brentq
 from scipy.stats import norm
 
 from jaxadapt.psychophysics import bootstrap as Boot  # noqa: N812
@@ -150,6 +151,51 @@ def test_all_no_places_the_pse_above_the_levels_and_all_yes_below():
         out = _fit(np.stack([levels] * 2), np.array([[0] * 5, [30] * 5]), np.full((2, 5), 30))
         assert out.pse[0] > levels.max() and out.pse[1] < levels.min(), offset
         assert np.all(out.flags & F.FLAT)
+
+
+def _all_same_gradient(levels, k, n, b0, b1):
+    """Gradient in ``(b0, b1)`` of the negative log-likelihood of all-"no"
+    (``k = 0``) or all-"yes" (``k = n``) counts plus the fit's prior on the
+    standardised intercept and slope (``a0 = b0 + b1 c``, ``a1 = b1 s``),
+    computed with scipy."""
+    c = np.sum(n * levels) / np.sum(n)
+    s = np.sqrt(np.sum(n * (levels - c) ** 2) / np.sum(n))
+    eta = b0 + b1 * levels
+    if np.all(k == 0):  # -n log(1 - Phi(eta))
+        r = n * np.exp(norm.logpdf(eta) - norm.logsf(eta))
+    else:  # -n log Phi(eta)
+        r = -n * np.exp(norm.logpdf(eta) - norm.logcdf(eta))
+    a0, a1 = b0 + b1 * c, b1 * s
+    prior = np.array([a0, a0 * c + a1 * s]) / F.PRIOR_SD**2
+    return np.array([np.sum(r), np.sum(r * levels)]) + prior
+
+
+def test_all_same_responses_with_uneven_trials_converge_to_the_optimum():
+    # All "no" at n = 4, 3, 3, 3, 4 (found by hypothesis) did not converge:
+    # glmfit's start, whose probits then differ only through n, gave a
+    # slope of -1.7e-5, from which BFGS crept back towards the optimum's 0
+    # by 2% a step (its curvature along the slope was the start's, 45 times
+    # too large, and never updated: y's ~ 1e-17 < eps) and reached
+    # max_steps. Even n, symmetric about the middle level, started at 0.
+    n = np.array([[4, 3, 3, 3, 4], [3, 4, 4, 4, 3]] * 2, float)
+    k = np.concatenate([np.zeros((2, 5)), n[2:]])  # all "no", then all "yes"
+    out = _fit(X, k, n)
+    assert out.converged.all()
+    assert np.all(out.flags == F.ALL_SAME | F.EXTRAPOLATED | F.FLAT)
+    assert np.all(out.b1 == 0)
+    assert np.all(out.pse[:2] > X.max()) and np.all(out.pse[2:] < X.min())
+    # The reported state is the optimum: on a1 = 0 (the optimum's slope for
+    # such data) the objective's gradient is 0 along the intercept and, as
+    # the levels are centred on their trial-weighted mean, along the slope,
+    # and the intercept is the root scipy finds for the first.
+    for i in range(len(k)):
+        gradient = _all_same_gradient(X, k[i], n[i], out.b0[i], out.b1[i])
+        np.testing.assert_allclose(gradient, 0.0, atol=1e-12 * n[i].sum())
+
+        def along_b0(b0, i=i):
+            return _all_same_gradient(X, k[i], n[i], b0, 0.0)[0]
+
+        assert out.b0[i] == pytest.approx(brentq(along_b0, -40, 40, xtol=1e-14), rel=1e-12)
 
 
 @pytest.mark.slow

@@ -124,7 +124,13 @@ def _objective(theta, data, guess, lapse):
 
 
 def _start(data):
-    """One IRLS step from glmfit's start, ``mu = (k + 1/2) / (n + 1)``."""
+    """One IRLS step from glmfit's start, ``mu = (k + 1/2) / (n + 1)``, with
+    the slope 0 where every response is the same (``ALL_SAME``): their
+    optimum is at ``a1 = 0`` exactly (the levels are centred on their
+    trial-weighted mean, so there the gradient along ``a1`` and the
+    Hessian's cross terms with it vanish), and BFGS started on that plane
+    stays on it, where from glmfit's slope, fitted to unequal trial counts,
+    it crept back too slowly to converge."""
     mu = (data.k + 0.5) / (data.n + 1.0)
     eta = jax.scipy.special.ndtri(mu)
     w = data.n * jnp.exp(2 * jax.scipy.stats.norm.logpdf(eta)) / (mu * (1 - mu))
@@ -132,7 +138,7 @@ def _start(data):
     z_mean, eta_mean = jnp.sum(w * data.z), jnp.sum(w * eta)
     var = jnp.sum(w * (data.z - z_mean) ** 2)
     cov = jnp.sum(w * (data.z - z_mean) * (eta - eta_mean))
-    a1 = jnp.where(var > 0, cov / jnp.where(var > 0, var, 1.0), 0.0)
+    a1 = jnp.where((var > 0) & ~(data.flags & ALL_SAME), cov / jnp.where(var > 0, var, 1.0), 0.0)
     return jnp.stack([eta_mean - a1 * z_mean, a1])
 
 

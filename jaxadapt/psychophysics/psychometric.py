@@ -201,9 +201,13 @@ def _fit_one(x, k, n, guess, lapse, max_steps):
     # centred on their trial-weighted mean, so at a1 = 0 the likelihood's
     # derivative along a1, sum n_i z_i h'(a0), is 0, as is the prior's (and
     # with fixed rates the objective is convex: Phi and 1 - Phi are
-    # log-concave). The solver stops within its tolerance of it, which in
-    # float32 is wide, and whose sign would put the PSE on either side of
-    # the levels (jaxadapt.psychophysics.flags): set to 0.
+    # log-concave). The solver starts on a1 = 0 and stays there but for
+    # rounding (_start), whose sign would put the PSE on either side of the
+    # levels (jaxadapt.psychophysics.flags): set to 0. The test below is
+    # then that of the problem constrained to a1 = 0, whose optimum is the
+    # unconstrained one: there the gradient along a1 and the Hessian's cross
+    # terms with a1 vanish, and what it measures is how far the other
+    # parameters are from their optimum.
     all_same = (data.flags & ALL_SAME) > 0
     theta = theta.at[1].set(jnp.where(all_same, 0.0, theta[1]))
     (a0, a1), log_guess, log_lapse = _unpack(theta, guess, lapse)
