@@ -12,6 +12,7 @@ PACKAGES = [
     "jaxadapt",
     "jaxadapt.fitting",
     "jaxadapt.operators",
+    "jaxadapt.operators.jacobs2015",
     "jaxadapt.io",
     "jaxadapt.physiology",
     "jaxadapt.psychophysics",
