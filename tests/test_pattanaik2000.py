@@ -9,6 +9,7 @@ import pytest
 from jaxadapt import scenes
 from jaxadapt.color import photopic_luminance, scotopic_luminance
 from jaxadapt.operators import pattanaik2000 as op
+from jaxadapt.operators.pattanaik2000 import _appearance, _operator
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import bleach_cone, bleach_rod, response_slope
 
@@ -175,19 +176,24 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
 
 @pytest.mark.slow
 def test_no_retrace_for_new_values_or_more_steps(count_calls):
-    traces = count_calls(op, "tone_map")
+    # tone_map as the pixel map (_operator) and the curve (_appearance) call it
+    calls = [count_calls(module, "tone_map") for module in (_operator, _appearance)]
+
+    def traces():
+        return sum(map(len, calls))
+
     frames = _sequence(H=11, W=13)  # a shape no other test uses
     op.run(P, frames, 0.03)
-    n = len(traces)
+    n = traces()
     op.run(P, frames * 2.0, 0.04)
-    assert len(traces) == n
+    assert traces() == n
     state = op.init(P, frames[0])
     for k in range(frames.shape[0]):
         state, _ = op.step(P, state, frames[k], 0.03)
-    m = len(traces)
+    m = traces()
     for k in range(frames.shape[0]):
         state, _ = op.step(P, state, frames[k] * 3.0, 0.05)
-    assert len(traces) == m
+    assert traces() == m
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
@@ -301,7 +307,7 @@ def test_float32_matches_float64():
 def test_display_inverse_matches_bisection():
     R = jnp.linspace(0.0, float(op.display_references(P)[0]), 50)
     L = op.display_luminance(P, R)
-    sigma_r, sigma_c, B_rod, B_cone = op._display_observer(P)
+    sigma_r, sigma_c, B_rod, B_cone = op.display(P)[:4]  # the display observer
     lo, hi = jnp.zeros_like(R), jnp.full_like(R, 1e4)
     for _ in range(200):
         mid = 0.5 * (lo + hi)
@@ -498,6 +504,7 @@ def test_programs_called_as_they_are_hold_no_host_callback(name):
         "jacobs2015": (params, frames, dt, jnp.full((2, 2), 1.5), key, None),
         "classic": (params, frames, dt),
     }[name]
+    programs = getattr(module, "_operator", module)  # a package's are in its _operator
     for on_host, has_callback in ((True, False), (False, True)):
-        text = module._run.lower(*args, on_host).as_text()
+        text = programs._run.lower(*args, on_host).as_text()
         assert ("callback" in text) == has_callback

@@ -52,7 +52,7 @@ def test_static_tone_curve_agrees_with_pfstmo_given_its_eq4(monkeypatch, A):
     # mesopic to photopic: to 3 %, and near display black to 2e-4 of white
     # (a twentieth of an 8-bit step; pfstmo lands a little lower there).
     (theirs,), _ = peers.pfstmo_pattanaik00([_ramp_image(A)], "--cone", str(A), "--rod", str(A))
-    monkeypatch.setattr(op, "sigma_rod", _pfstmo_sigma_rod)
+    monkeypatch.setattr(op._appearance, "sigma_rod", _pfstmo_sigma_rod)
     ours = _ours_static(A)
     shown = (theirs[0, :, 1] > 1e-3) & (theirs[0, :, 1] < 0.999)
     assert shown.sum() > 10

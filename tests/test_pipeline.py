@@ -62,7 +62,7 @@ def test_chunks_give_the_frames_and_diagnostics_of_one_call(op, params, adaptati
 def test_a_local_background_from_a_given_adaptation_compiles_run_twice(count_calls):
     # init gave a given adaptation as scalars and run carried maps: the
     # second chunk compiled run again, for three compilations of two shapes.
-    traces = count_calls(pattanaik2000, "frame_goals")
+    traces = count_calls(pattanaik2000._operator, "frame_goals")
     params = pattanaik2000.Params(background="gaussian", background_scale=2.0)
     source = _step_source(T=7, H=7, W=11, adaptation=0.5)  # a shape no other test uses
     assert len(list(pipeline.chunks(pattanaik2000, params, source, size=3))) == 3

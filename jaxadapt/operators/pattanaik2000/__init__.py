@@ -1,0 +1,138 @@
+"""The time-dependent tone reproduction operator of Pattanaik et al. (2000).
+
+A viewer looks at a scene whose luminance changes over time; a display
+observer, adapted to an ordinary display, looks at our output. The operator
+finds display values that evoke in the display observer the appearance the
+scene evokes in the scene viewer (Fig. 1 and Fig. 4 of the paper)::
+
+    frame (cd/m2) -> goal G -> kinetics -> A, B -> sigma, references, rule
+                                                      |
+    pixels: L_rod, L_cone -> R_lum, S_color -> display response -> display RGB
+
+The adaptation state is four scalars (``A_rod``, ``A_cone``, ``B_rod``,
+``B_cone``). :func:`run` therefore finds the goals of every frame at once
+(one batched reduction), advances the state through the whole sequence by
+the exact kinetics (on a GPU by their associative form, with no loop over
+frames), and only then maps the pixels of every frame in one vectorised
+pass; :func:`step` does the same one frame at a time.
+
+Timing: frame ``k``, shown at ``t_k``, is seen with the state reached at
+``t_k``; its goal is then held for its duration ``dt_k`` to give the state
+at ``t_{k+1}``. This is the reading of §5 (title page): the frame just after
+the lights come on is seen with the adaptation of the dark frame before it
+("the lighting has changed, but the scene viewer's adaptation state has
+not"), and is almost entirely white.
+
+References
+----------
+Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation
+for Fast Realistic Image Display*, SIGGRAPH 2000, §4-§5.
+"""
+
+from typing import NamedTuple  # noqa: F401  (see below)
+
+from jaxadapt._checks import check_value, float_array  # noqa: F401  (see below)
+from jaxadapt.color import (  # noqa: F401  (see below)
+    W_PHOTOPIC,
+    W_SCOTOPIC,
+    combine,
+    photopic_luminance,
+    scotopic_luminance,
+)
+from jaxadapt.gaze import fixation, frame_centre  # noqa: F401  (see below)
+from jaxadapt.operators.checks import (  # noqa: F401  (see below)
+    as_dtype,
+    check_adaptation,
+    check_fields,
+    check_frames,
+    check_frames_and_dt,
+    check_one_parameter_set,
+    check_rgb,
+    check_state,
+    frames_and_dt_messages,
+    frames_messages,
+    is_traced,
+    raise_verdict,
+)
+from jaxadapt.operators.pattanaik2000._adaptation import (
+    advance,
+    advance_sequence,
+    frame_goals,
+    relaxations,
+    static_state,
+)
+from jaxadapt.operators.pattanaik2000._appearance import (
+    curve,
+    display,
+    display_log_luminance,
+    display_luminance,
+    display_references,
+    display_slope,
+    display_value,
+    inverse_appearance,
+    inverse_display,
+    luminance_response,
+    observer,
+    pixel_terms,
+    references,
+    tone_map,
+    tone_map_planes,
+)
+from jaxadapt.operators.pattanaik2000._operator import init, run, step
+from jaxadapt.operators.pattanaik2000._params import (
+    CURVE_LOG10_LUMINANCE,
+    POSITIVE_FIELDS,
+    Diagnostics,
+    Display,
+    Observer,
+    Params,
+    State,
+    diagnostics_table,
+)
+from jaxadapt.physiology.response import (  # noqa: F401  (see below)
+    forward_difference_slope,
+    log_naka_rushton_sum_inverse,
+    naka_rushton,
+    response_slope,
+    sigma_cone,
+    sigma_rod,
+)
+
+# The imports marked "see below" were imports of the operator when it was
+# one module, and so its attributes (``pattanaik2000.as_dtype``,
+# ``pattanaik2000.response_slope``): kept so that code reaching them through
+# it still works, but not part of its API, which is ``__all__``: in the
+# order of the single module (parameters, appearance, adaptation, contract).
+__all__ = [
+    "CURVE_LOG10_LUMINANCE",
+    "Params",
+    "POSITIVE_FIELDS",
+    "State",
+    "Display",
+    "Observer",
+    "Diagnostics",
+    "diagnostics_table",
+    "luminance_response",
+    "references",
+    "display_references",
+    "display_slope",
+    "display",
+    "display_log_luminance",
+    "inverse_display",
+    "display_luminance",
+    "inverse_appearance",
+    "observer",
+    "tone_map",
+    "tone_map_planes",
+    "pixel_terms",
+    "display_value",
+    "curve",
+    "frame_goals",
+    "static_state",
+    "relaxations",
+    "advance",
+    "advance_sequence",
+    "init",
+    "step",
+    "run",
+]
