@@ -9,6 +9,7 @@ import pytest
 
 from jaxadapt import fused
 from jaxadapt.operators import pattanaik2000 as op
+from jaxadapt.operators.checks import as_dtype
 
 
 def _frames(T, H, W, seed=0):
@@ -47,7 +48,7 @@ def _fused(frames, args):
 )
 def test_kernel_equals_the_map_it_fuses(dtype, background):
     # 3 x 23 x 29 pixels: the last block of each frame is partly outside it.
-    params, frames = op.as_dtype((op.Params(background=background), _frames(3, 23, 29)), dtype)
+    params, frames = as_dtype((op.Params(background=background), _frames(3, 23, 29)), dtype)
     args = (params, _observers(params, frames))
     expected = _tone_map(frames, args)
     got = _fused(frames, args)

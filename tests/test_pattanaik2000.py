@@ -47,7 +47,7 @@ def test_rule_1_colour_follows_the_papers_exponent():
     obs = op.observer(P, display_state(P))
     S_d = float(op.display_slope(P))
     L = jnp.geomspace(1.0, 500.0, 200)
-    slope = op.response_slope(L, obs.sigma_cone, obs.B_cone, P.n)
+    slope = response_slope(L, obs.sigma_cone, obs.B_cone, P.n)
     L_match = float(L[jnp.argmin(jnp.abs(slope - S_d))])
     rgb = jnp.array([1.4, 0.9, 0.6]) / float(photopic_luminance(jnp.array([1.4, 0.9, 0.6])))
     out = op.tone_map(P, obs, L_match * rgb)

@@ -29,31 +29,6 @@ Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation
 for Fast Realistic Image Display*, SIGGRAPH 2000, §4-§5.
 """
 
-from typing import NamedTuple  # noqa: F401  (see below)
-
-from jaxadapt._checks import check_value, float_array  # noqa: F401  (see below)
-from jaxadapt.color import (  # noqa: F401  (see below)
-    W_PHOTOPIC,
-    W_SCOTOPIC,
-    combine,
-    photopic_luminance,
-    scotopic_luminance,
-)
-from jaxadapt.gaze import fixation, frame_centre  # noqa: F401  (see below)
-from jaxadapt.operators.checks import (  # noqa: F401  (see below)
-    as_dtype,
-    check_adaptation,
-    check_fields,
-    check_frames,
-    check_frames_and_dt,
-    check_one_parameter_set,
-    check_rgb,
-    check_state,
-    frames_and_dt_messages,
-    frames_messages,
-    is_traced,
-    raise_verdict,
-)
 from jaxadapt.operators.pattanaik2000._adaptation import (
     advance,
     advance_sequence,
@@ -89,20 +64,9 @@ from jaxadapt.operators.pattanaik2000._params import (
     State,
     diagnostics_table,
 )
-from jaxadapt.physiology.response import (  # noqa: F401  (see below)
-    forward_difference_slope,
-    log_naka_rushton_sum_inverse,
-    naka_rushton,
-    response_slope,
-    sigma_cone,
-    sigma_rod,
-)
 
-# The imports marked "see below" were imports of the operator when it was
-# one module, and so its attributes (``pattanaik2000.as_dtype``,
-# ``pattanaik2000.response_slope``): kept so that code reaching them through
-# it still works, but not part of its API, which is ``__all__``: in the
-# order of the single module (parameters, appearance, adaptation, contract).
+# The API, in the order of the single module it was (parameters,
+# appearance, adaptation, contract).
 __all__ = [
     "CURVE_LOG10_LUMINANCE",
     "Params",
