@@ -30,6 +30,9 @@ python3 benchmarks/bench_jacobs2015.py --size 1920x1080 --frames 60 --repeats 5 
 save
 python3 benchmarks/bench_observer.py --label "$label"
 save
+# The live viewer at the 2015 paper's size (frames capped at 60 a second, as a display).
+python3 benchmarks/bench_viewer.py --sizes 384x216 1920x1080 --label "$label"
+save
 # GPU correctness: the operator and kinetics tests on the GPU backend.
 python3 -m pytest -o addopts="" -q -p no:cacheprovider -p no:warnings tests/test_pattanaik2000.py \
     tests/test_fused.py tests/test_jacobs2015.py tests/test_kinetics.py \
