@@ -538,3 +538,29 @@ def test_a_truncated_exr_header_is_said_once(tmp_path, keep):
     parts = str(caught.value).split("; ")
     assert len(parts) == len(set(parts)), str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def _double_tiff(path, pixels):
+    """A TIFF of 64-bit floats, written by OpenImageIO."""
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.DOUBLE))
+    out.write_image(pixels)
+    out.close()
+
+
+def test_doubles_beyond_float32_are_refused_as_out_of_range(tmp_path):
+    # They turned infinite in the reading, and were refused as if the file
+    # held infinities, with the advice to set them to black.
+    path = tmp_path / "big.tif"
+    _double_tiff(path, np.full((2, 3, 3), 1e50))
+    with pytest.raises(ValueError, match=r"big.tif: expected values within float32's range "):
+        io.read_hdr(path)
+
+
+def test_doubles_within_float32_read_as_their_nearest_float32(tmp_path):
+    pixels = np.array([[[1e-40, 0.1, 3e38], [0.0, 1e8, np.pi], [1.0, 2.0, 1e-3]]] * 2)
+    path = tmp_path / "fine.tif"
+    _double_tiff(path, pixels)
+    read = io.read_hdr(path)
+    assert read.dtype == np.float32
+    np.testing.assert_array_equal(read, pixels.astype(np.float32))

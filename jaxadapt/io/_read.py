@@ -45,18 +45,19 @@ def read_hdr(path):
     FileNotFoundError
         The file does not exist.
     ValueError
-        The file cannot be read, does not hold floating-point data, or its
+        The file cannot be read, does not hold floating-point data, holds
+        finite values beyond float32's range (a TIFF of doubles can), or its
         header is invalid (channels, orientation, primaries, exposure).
     """
     path = Path(path)
     with _hdr_image(path) as (image, header):
         pixels = _read_pfm(path) if image.format_name() == "pnm" else None
-        if pixels is None:
-            pixels = image.read_image(format="float")
+        if pixels is None:  # doubles as they are, so that _as_float32 sees them
+            pixels = image.read_image(format="double" if _doubles(header) else "float")
         if pixels is None:
             raise ValueError(f"{path}: cannot read pixels ({_one_line(image.geterror())})")
     spec = header.spec
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
+    pixels = _as_float32(pixels, path).reshape(spec.height, spec.width, -1)
     if header.channels != list(range(pixels.shape[-1])):  # (a copy: only where needed)
         pixels = pixels[..., header.channels]
     pixels = display_window(pixels, spec)
@@ -65,6 +66,26 @@ def read_hdr(path):
     if header.to_bt709 is not None:
         pixels = to_bt709_gamut(pixels, header.to_bt709)
     return np.ascontiguousarray(reorient(pixels, header.orientation))
+
+
+def _doubles(header):
+    """Whether the file stores 64-bit floating-point pixels (TIFF can)."""
+    return str(header.spec.format) == "double"
+
+
+def _as_float32(pixels, path):
+    """``pixels`` as float32, refusing finite values beyond its range: they
+    would turn infinite, and be reported as if the file held infinities."""
+    pixels = np.asarray(pixels)
+    largest = float(np.finfo(np.float32).max)
+    if pixels.dtype == np.float64:
+        big = np.abs(np.nan_to_num(pixels, nan=0, posinf=0, neginf=0)).max(initial=0)
+        if big > largest:
+            raise ValueError(
+                f"{path}: expected values within float32's range (up to {largest:.3g}), "
+                f"got {big:.3g}; scale the file down (oiiotool {path} --mulc FACTOR -o OUT)"
+            )
+    return pixels.astype(np.float32, copy=False)
 
 
 #: A PFM file's header: its kind (``PF`` colour, ``Pf`` grey), width,
