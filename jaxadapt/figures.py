@@ -312,9 +312,11 @@ def plot_pse(path, table, tests=()):
     beyond); where it was kept (the prior's), at that PSE, on the axis'
     edge when beyond it (a triangle pointing its way). Medians are of the
     PSEs the group test takes. ``tests`` are the rows of
-    ``group_test.csv``. Returns the figure, saved to ``path``.
+    ``group_test.csv``; one without a test says why instead of a p.
+    Returns the figure, saved to ``path``.
     """
     from jaxadapt.psychophysics.separation import undetermined
+    from jaxadapt.psychophysics.stats import untested
 
     conditions = list(dict.fromkeys(table.condition))
     pse = np.asarray(table.pse, float)
@@ -338,8 +340,11 @@ def plot_pse(path, table, tests=()):
         ax.set_ylim(*span)
         ax.axhline(0.0, color="0.6", lw=0.8, ls=":")
         ax.set_xticks(range(len(conditions)), [drawable(c) for c in conditions])
-        said = [f"{drawable(t['condition'])} vs {drawable(t['control'])}" for t in tests]
-        said = [f"{pair}: p = {t['p']:.3g}" for pair, t in zip(said, tests, strict=True)]
+        said = []
+        for t in tests:
+            why_not = untested(t)
+            result = f"no test ({drawable(why_not)})" if why_not else f"p = {t['p']:.3g}"
+            said.append(f"{drawable(t['condition'])} vs {drawable(t['control'])}: {result}")
         title = "\n".join(["PSEs, 95% intervals and medians", *said])
         ax.set(ylabel="PSE (log10 test / standard luminance)", title=title)
         ax.title.set_fontsize(9)

@@ -1,6 +1,8 @@
 """Group statistics against SciPy: the rank-sum test of §4.1.2 and §4.2.2."""
 
 import math
+import warnings
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -240,18 +242,70 @@ def test_masks_equal_the_subsets_and_batches_equal_a_loop():
     np.testing.assert_allclose(vmapped.test.p, batch.test.p, rtol=1e-12)
 
 
-def test_empty_group_and_no_variation_give_no_evidence():
-    x = jnp.array([0.1, 0.2, 0.3])
-    empty = compare(x, jnp.array([0.5, 0.6]), y_mask=jnp.array([False, False]))
-    assert float(empty.test.p) == 1.0 and float(empty.test.z) == 0.0
-    assert float(empty.rank_biserial) == 0.0
-    assert np.isnan(float(empty.median_y)) and np.isnan(float(empty.shift))
+def test_no_variation_gives_no_evidence():
     tied = ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2))
     assert float(tied.p) == 1.0 and not bool(tied.exact)  # auto: tied, asymptotic
     assert float(ranksum(jnp.full(4, 0.2), jnp.full(3, 0.2), method="exact").p) == 1.0
-    for method in ("auto", "exact"):
-        empty = ranksum(x, jnp.array([0.5, 0.6]), y_mask=jnp.zeros(2, bool), method=method)
-        assert float(empty.p) == 1.0
+
+
+@pytest.mark.parametrize("method", ["auto", "exact", "asymptotic"])
+def test_an_empty_group_gives_no_test_as_scipy(method):
+    # A group left without values (every PSE undetermined) gave W = 0,
+    # z = 0, p = 1, "exact" and rank-biserial 0: a test that was not run
+    # reported as one that found nothing. SciPy gives NaN.
+    x, y = np.array([0.1, 0.2, 0.3]), np.array([0.5, 0.6])
+    for x_valid, y_valid in ((True, False), (False, True), (False, False)):
+        x_mask, y_mask = np.full(3, x_valid), np.full(2, y_valid)
+        c = compare(x, y, x_mask=x_mask, y_mask=y_mask, method=method)
+        xs, ys = x[x_mask], y[y_mask]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # SciPy warns of the empty sample
+            refs = (scipy.stats.mannwhitneyu(xs, ys, method=method), scipy.stats.ranksums(xs, ys))
+        assert all(np.isnan(r.pvalue) and np.isnan(r.statistic) for r in refs)
+        t = c.test
+        assert all(np.isnan(float(v)) for v in (t.p, t.statistic, t.u, t.z, c.rank_biserial))
+        assert not bool(t.exact) and np.isnan(float(c.shift))
+        assert (float(t.n_x), float(t.n_y)) == (xs.size, ys.size)
+
+
+def test_one_value_against_one_is_a_test_as_scipys():
+    # The smallest groups that have a test: p = 1, the least p they can reach.
+    for x, y in (([0.1], [0.5]), ([0.1], [0.5, 0.7]), ([0.9], [0.5, 0.7])):
+        for method in ("exact", "asymptotic"):
+            ours = stats.ranksum(jnp.array(x), jnp.array(y), method=method)
+            ref = scipy.stats.mannwhitneyu(x, y, method=method)
+            assert float(ours.u) == ref.statistic
+            assert float(ours.p) == pytest.approx(ref.pvalue, rel=1e-12)
+    assert float(stats.ranksum(jnp.array([0.1]), jnp.array([0.5])).p) == 1.0
+
+
+def test_only_the_batch_elements_with_an_empty_group_are_untested():
+    x, y = jnp.array([[0.1, 0.2], [0.3, 0.4]]), jnp.array([[0.5, 0.6], [0.0, 0.05]])
+    y_mask = jnp.array([[True, True], [False, False]])
+    r = ranksum(x, y, y_mask=y_mask, method="exact")
+    assert float(r.p[0]) == pytest.approx(scipy.stats.mannwhitneyu([0.1, 0.2], [0.5, 0.6]).pvalue)
+    assert bool(r.exact[0]) and np.isnan(float(r.p[1])) and not bool(r.exact[1])
+
+
+def test_group_tests_say_why_a_condition_has_no_test():
+    # Every manipulated PSE undetermined (NaN): the row has no test, and
+    # untested says why; a row with a test has none to say.
+    table = _fit_table(
+        ["control"] * 3 + ["manip"] * 3 + ["other"] * 2,
+        [0.01, -0.02, 0.0, np.nan, np.nan, np.nan, 0.1, 0.2],
+    )
+    manip, other = stats.group_tests(table, "control")
+    assert (manip["n"], manip["n_control"], manip["p_exact"]) == (0, 3, "false")
+    assert all(np.isnan(manip[k]) for k in ("p", "W", "z", "rank_biserial", "shift", "median"))
+    assert stats.untested(manip) == "manip has no determined PSE"
+    assert stats.untested(other) is None and 0 < other["p"] <= 1
+    both = dict(manip, n_control=0)
+    assert stats.untested(both) == "neither manip nor control has a determined PSE"
+
+
+def _fit_table(condition, pse):
+    """The columns of a fit table that :func:`stats.group_tests` reads."""
+    return SimpleNamespace(condition=list(condition), pse=np.asarray(pse, float))
 
 
 def test_float32_stays_float32():
@@ -269,7 +323,7 @@ def test_an_empty_group_gives_nan_medians_as_a_masked_out_one():
     masked = stats.compare(jnp.ones(2), y, x_mask=jnp.zeros(2, bool))
     c = stats.compare(empty, y)
     assert np.isnan(c.median_x) and np.isnan(c.shift) and np.isnan(masked.median_x)
-    assert float(c.median_y) == 3.0 and float(c.test.p) == float(masked.test.p)
+    assert float(c.median_y) == 3.0 and np.isnan(c.test.p) and np.isnan(masked.test.p)
     assert stats.median(jnp.zeros((2, 0))).shape == (2,)
 
 

@@ -206,17 +206,25 @@ def fit(args, console):
         figures.plot_psychometric(staging / "psychometric.png", groups, table)
         figures.plot_pse(staging / "pse.png", table, rows)
     for row in rows:
+        sizes, why_not = f"n = {row['n']}, {row['n_control']}", stats.untested(row)
+        how = "exact" if row["p_exact"] == "true" else "normal approximation"
+        test = (
+            f"no rank-sum test: {why_not} ({sizes})"
+            if why_not
+            else f"rank-sum p = {row['p']:.3g} ({how}; {sizes})"
+        )
         _report(
             f"{row['condition']} vs {row['control']}: median PSE {_signed(row['median'])} vs "
-            f"{_signed(row['median_control'])} log units, rank-sum p = {row['p']:.3g} "
-            f"({'exact' if row['p_exact'] == 'true' else 'normal approximation'}; "
-            f"n = {row['n']}, {row['n_control']})"
+            f"{_signed(row['median_control'])} log units, {test}"
         )
     _report(f"wrote {', '.join(written)} to {out}/")
 
 
 def _signed(value, digits=3):
-    """``value`` with its sign and ``digits`` decimals, 0 as ``+0.000`` (not ``-0.000``)."""
+    """``value`` with its sign and ``digits`` decimals, 0 as ``+0.000`` (not
+    ``-0.000``); NaN (no PSE to take the median of) as ``nan``."""
+    if np.isnan(value):
+        return "nan"
     return f"{round(value, digits) + 0.0:+.{digits}f}"
 
 

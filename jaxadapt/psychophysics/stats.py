@@ -67,12 +67,13 @@ class RankSum(NamedTuple):
     z : array
         Standardised statistic, signed as ``U - n_x n_y / 2``.
     p : array
-        Two-sided p-value.
+        Two-sided p-value. NaN, as ``statistic``, ``u`` and ``z``, where a
+        group has no valid entry: there is no test.
     n_x, n_y : array
         Group sizes (valid entries).
     exact : array of bool
         Whether ``p`` comes from the exact null distribution (else from the
-        normal approximation).
+        normal approximation, or there is no ``p``).
     """
 
     statistic: jax.Array
@@ -340,8 +341,12 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     ``"exact"`` raises, and ``"auto"`` uses the normal approximation for
     every element, as ``exact`` reports.
 
-    When there is no variation (every valid value tied) or a group is empty,
-    ``z = 0`` and ``p = 1``.
+    A group without valid entries leaves nothing to test: ``W``, ``U``,
+    ``z`` and ``p`` are NaN and ``exact`` is false, as SciPy's
+    ``mannwhitneyu`` and ``ranksums`` give NaN for an empty sample. Where
+    there is no variation (every valid value tied), ``z = 0`` and ``p = 1``
+    (SciPy's too); one value against one gets ``p = 1`` as well, the least
+    p that two values can reach.
 
     Examples
     --------
@@ -383,6 +388,7 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     z = jnp.sign(d) * jnp.maximum(jnp.abs(d) - 0.5 * continuity, 0.0)
     z = jnp.where(informative, z / jnp.sqrt(jnp.where(informative, var, 1.0)), 0.0)
     p = 2 * ndtr(-jnp.abs(z))
+    tested = (n_x > 0) & (n_y > 0)
     exact = jnp.zeros(batch, bool)
     if method != "asymptotic":
         masked = (x_mask is not None, y_mask is not None)
@@ -400,7 +406,8 @@ def ranksum(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
                 exact &= ~jnp.any(valid & (tied > 1), axis=-1)
             p_exact = _exact_p(U, n_x, n_y, s_lo, s_hi, l_lo, l_hi, dtype)
             p = jnp.where(exact, p_exact, p)
-    return RankSum(W, U, z, p, n_x, n_y, exact)
+    W, U, z, p = (jnp.where(tested, a, jnp.nan) for a in (W, U, z, p))
+    return RankSum(W, U, z, p, n_x, n_y, exact & tested)
 
 
 def hodges_lehmann(x, y, *, x_mask=None, y_mask=None):
@@ -436,8 +443,8 @@ def compare(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     Comparison
         ``shift`` and ``rank_biserial`` are positive when ``x`` tends to be
         larger (for PSEs: the manipulated test needs more luminance to match
-        the standard, i.e. it looks darker). ``rank_biserial`` is 0 when a
-        group is empty.
+        the standard, i.e. it looks darker). Like the test's ``p``,
+        ``rank_biserial`` and ``shift`` are NaN when a group is empty.
 
     Examples
     --------
@@ -446,8 +453,7 @@ def compare(x, y, *, x_mask=None, y_mask=None, continuity=True, method="auto"):
     (0.165, 0.875, 0.18)
     """
     test = ranksum(x, y, x_mask=x_mask, y_mask=y_mask, continuity=continuity, method=method)
-    pairs = test.n_x * test.n_y
-    r = jnp.where(pairs > 0, 2 * test.u / jnp.maximum(pairs, 1.0) - 1, 0.0)
+    r = 2 * test.u / jnp.maximum(test.n_x * test.n_y, 1.0) - 1  # NaN with U where untested
     return Comparison(
         median_x=median(x, x_mask),
         median_y=median(y, y_mask),
@@ -481,7 +487,10 @@ def group_tests(table, control, method="auto"):
 
     ``table`` has a ``condition`` and a ``pse`` per group (a fit table of
     :mod:`~jaxadapt.psychophysics.trials`); PSEs that are NaN (the data
-    place none) are left out. ``method`` is :func:`ranksum`'s.
+    place none) are left out. ``method`` is :func:`ranksum`'s. A condition
+    (or the control) left without PSEs has no test: its row's ``W``, ``z``,
+    ``p`` and ``rank_biserial`` are NaN, ``p_exact`` false, and
+    :func:`untested` says why.
     """
     condition = np.asarray(table.condition)
     placed = np.isfinite(table.pse)  # NaN: the data place no PSE (separation.undetermined)
@@ -515,3 +524,21 @@ def group_tests(table, control, method="auto"):
             }
         )
     return rows
+
+
+def untested(row):
+    """Why a row of :func:`group_tests` has no test (a group without a PSE
+    to rank), in words for the command line and ``pse.png``; ``None`` when
+    it has one.
+
+    Examples
+    --------
+    >>> untested({"condition": "manip", "control": "control", "n": 0, "n_control": 3})
+    'manip has no determined PSE'
+    """
+    empty = [
+        str(row[name]) for name, n in (("condition", "n"), ("control", "n_control")) if not row[n]
+    ]
+    if len(empty) == 2:
+        return f"neither {empty[0]} nor {empty[1]} has a determined PSE"
+    return f"{empty[0]} has no determined PSE" if empty else None

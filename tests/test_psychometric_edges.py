@@ -1,0 +1,73 @@
+"""Edges of ``jaxadapt psychometric``: a group test without PSEs on one side."""
+
+import csv
+
+import numpy as np
+import pytest
+
+from jaxadapt.cli import main
+
+
+def _run(capsys, *argv):
+    status = main(list(argv))
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+@pytest.mark.slow
+def test_a_condition_without_determined_pses_has_no_group_test(tmp_path, capsys):
+    # Every manipulated answer "yes": no manipulated PSE is determined, so
+    # the test has nothing to rank on that side. It said "rank-sum p = 1
+    # (exact; n = 0, 3)", wrote W = z = rank_biserial = 0, p = 1, p_exact
+    # true, and pse.png's title said p = 1.
+    rng = np.random.default_rng(1)
+    rows = ["participant,condition,level,response"]
+    for participant in ("p1", "p2", "p3"):
+        for level in np.linspace(-0.3, 0.3, 7):
+            for _ in range(10):
+                rows.append(f"{participant},control,{level:.2f},{int(rng.random() < 0.5 + level)}")
+                rows.append(f"{participant},manip,{level:.2f},1")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "trials.csv").write_text("\n".join(rows) + "\n")
+    status, stdout, err = _run(
+        capsys,
+        "psychometric",
+        "fit",
+        str(out / "trials.csv"),
+        "--resamples",
+        "0",
+        "--out",
+        str(out),
+    )
+    assert status == 0, err
+    said = stdout.splitlines()[0]
+    assert said.startswith("manip vs control: median PSE nan vs ")
+    assert said.endswith("no rank-sum test: manip has no determined PSE (n = 0, 3)")
+    (row,) = list(csv.DictReader(open(out / "group_test.csv")))
+    for column in ("median", "shift", "rank_biserial", "W", "z", "p"):
+        assert row[column] == "nan", (column, row)
+    assert (row["p_exact"], row["n"], row["n_control"]) == ("false", "0", "3")
+
+
+def test_pse_figure_says_why_a_row_has_no_test(tmp_path):
+    from types import SimpleNamespace
+
+    from jaxadapt import figures
+    from jaxadapt.psychophysics import psychometric
+
+    nan = np.full(2, np.nan)
+    table = SimpleNamespace(
+        condition=["control", "manip"],
+        pse=np.array([0.01, np.nan]),
+        ci_low=np.array([-0.05, np.nan]),
+        ci_high=np.array([0.07, np.nan]),
+        pse_low=np.array([np.nan, -np.inf]),
+        pse_high=np.array([np.nan, -0.3]),
+        flags=np.array([0, psychometric.NO_PSE]),
+        sigma_max=nan,
+    )
+    row = {"condition": "manip", "control": "control", "p": np.nan, "n": 0, "n_control": 1}
+    title = figures.plot_pse(tmp_path / "pse.png", table, [row]).axes[0].get_title()
+    assert "manip vs control: no test (manip has no determined PSE)" in title
+    assert "p = " not in title
