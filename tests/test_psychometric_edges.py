@@ -1,6 +1,8 @@
-"""Edges of ``jaxadapt psychometric``: a group test without PSEs on one side."""
+"""Edges of ``jaxadapt psychometric``: a group test without PSEs on one side,
+and cue weights beyond float32's range."""
 
 import csv
+import warnings
 
 import numpy as np
 import pytest
@@ -12,6 +14,26 @@ def _run(capsys, *argv):
     status = main(list(argv))
     captured = capsys.readouterr()
     return status, captured.out, captured.err
+
+
+def test_a_weight_beyond_float32_is_refused_up_front(tmp_path, capsys):
+    # 1e300 was cast to inf in the float32 simulation (NumPy's overflow
+    # warning on stderr), then written as weight_blur=inf with NaN PSEs.
+    for value in ("1e300", "-1e39", "nan", "inf"):
+        out = tmp_path / value
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no overflow warning either
+            status, _, err = _run(
+                capsys,
+                *("psychometric", "simulate", "--protocol", "mesopic", "--observers", "2"),
+                *("--weight", f"blur={value}", "--out", str(out)),
+            )
+        assert status == 2
+        lines = err.splitlines()
+        assert len(lines) == 1, err
+        assert lines[0].startswith("jaxadapt: error: --weight: expected a finite number")
+        assert "float32: -3.4e+38 to 3.4e+38" in lines[0] and f"blur={value}" in lines[0]
+        assert not out.exists()
 
 
 @pytest.mark.slow

@@ -301,8 +301,14 @@ def _weights(items, cues):
             weights[name.strip()] = float(value)
         except ValueError:
             raise UsageError(f"--weight: expected a number after '=', got {item!r}") from None
-        if not np.isfinite(weights[name.strip()]):
-            raise UsageError(f"--weight: expected a finite number, got {item!r}")
+        # Finite in float32, the simulation's dtype: beyond its range the
+        # weight would be cast to inf (with NumPy's overflow warning).
+        largest = float(np.finfo(np.float32).max)
+        if not abs(weights[name.strip()]) <= largest:
+            raise UsageError(
+                f"--weight: expected a finite number (float32: {-largest:.2g} to {largest:.2g}), "
+                f"got {item!r}"
+            )
     return list(weights.values())
 
 
