@@ -10,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 
 import aiohttp
 import jax
@@ -31,9 +32,10 @@ from jaxadapt.viewer import (
     replay,
 )
 from jaxadapt.viewer._server import Simulation
-from jaxadapt.viewer._session import open_source
+from jaxadapt.viewer._session import FRAME_COLUMNS, open_source
 
 SMALL = {"scene": "flash", "size": [32, 24]}
+SMALL_ARGS = ["--scene", "flash", "--size", "32x24"]
 
 
 @pytest.mark.parametrize(
@@ -70,6 +72,24 @@ def test_a_recorded_folder_is_not_overwritten(tmp_path, capsys):
     assert main(["view", "--no-browser", "--record", str(tmp_path)]) == 2
     assert "--record:" in capsys.readouterr().err
     assert (tmp_path / "session.json").read_text() == "{}"
+
+
+@pytest.mark.parametrize("given", ["afile", "afile/x"])
+def test_a_record_or_replay_in_a_file_is_one_line(given, tmp_path, capsys):
+    """A file where --record or --replay wants a folder is said before
+    anything is compiled (it was the OS's error, after compiling)."""
+    (tmp_path / "afile").write_text("kept")
+    path = tmp_path / given
+    assert _status(["view", "--no-browser", *SMALL_ARGS, "--record", str(path)]) == 2
+    assert _status(["render", "--replay", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    wrong = (
+        f"expected a folder, got the file {path}"
+        if given == "afile"
+        else (f"expected a folder, got {path}, under the file {tmp_path / 'afile'}")
+    )
+    assert err == [f"jaxadapt: error: --record: {wrong}", f"jaxadapt: error: --replay: {wrong}"]
+    assert (tmp_path / "afile").read_text() == "kept" and not (tmp_path / "o").exists()
 
 
 def test_a_port_in_use_is_one_line(capsys):
@@ -116,7 +136,7 @@ def test_replay_gives_the_recorded_frames_exactly(operator, tmp_path):
     for live, replayed in zip(shown, again, strict=True):
         np.testing.assert_array_equal(replayed.pixels, live)
     spec, rows = read_record(record)
-    assert spec["complete"] and spec["frames"] == 14 and rows[9]["reset"] == "1"
+    assert spec["complete"] and spec["frames"] == 14 and rows[9]["reset"]
     times, points = read_gaze_csv(record / "gaze.csv")
     assert np.all(np.diff(times) > 0) and np.isnan(points[3]).all()
     # The command line's replay writes the same frames, read back from its PNGs
@@ -126,7 +146,7 @@ def test_replay_gives_the_recorded_frames_exactly(operator, tmp_path):
     for live, png in zip(shown, written, strict=True):
         np.testing.assert_array_equal(png, live)
     diagnostics = np.genfromtxt(out / "diagnostics.csv", delimiter=",", names=True)
-    np.testing.assert_allclose(diagnostics["dt"], [float(r["dt"]) for r in rows], rtol=1e-5)
+    np.testing.assert_allclose(diagnostics["dt"], [r["dt"] for r in rows], rtol=1e-5)
     assert np.isnan(diagnostics["gaze_x"][3]) and np.all(diagnostics["adaptation"] > 0)
     assert {p.name for p in out.iterdir()} >= {"contact_sheet.png", "adaptation.png"}
 
@@ -157,6 +177,92 @@ def test_replay_of_a_folder_without_a_record_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("jaxadapt: error: --replay: expected a folder recorded by jaxadapt view")
     assert err.count("\n") == 1 and "session.json: no such file" in err
+
+
+@pytest.fixture
+def recorded(tmp_path):
+    """A record of SMALL's first 3 frames (the second a blink), in ``tmp_path/record``."""
+    session = Session(SMALL)
+    with contextlib.closing(Recorder(tmp_path / "record", session.spec)) as recorder:
+        for gaze in ((5.0, 5.0), (math.nan, math.nan), (9.0, 4.0)):
+            recorder.write(session.advance(FIRST_DT, gaze))
+    return tmp_path / "record"
+
+
+def _damage(path, file, change):
+    """Edit the record in ``path``: set fields of ``session.json`` (a dict),
+    write it (text), or set a cell of ``frames.csv`` ((row as a spreadsheet
+    counts, column, value))."""
+    if isinstance(change, dict):
+        spec = json.loads((path / file).read_text())
+        (path / file).write_text(json.dumps({**spec, **change}))
+    elif isinstance(change, str):
+        (path / file).write_text(change)
+    else:
+        row, column, value = change
+        lines = (path / file).read_text().splitlines()
+        cells = lines[row - 1].split(",")
+        cells[FRAME_COLUMNS.index(column)] = value
+        lines[row - 1] = ",".join(cells)
+        (path / file).write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize(
+    "file, change, says",
+    [
+        ("session.json", {"scene": "nope"}, "scene: expected one of checkerboard, flash, "),
+        ("session.json", {"operator": "nope"}, "operator: expected one of jacobs2015, pattanaik"),
+        ("session.json", {"seed": "x"}, "seed: expected a whole number >= 0, got 'x'"),
+        ("session.json", {"size": "abc"}, "size: expected [width, height] in pixels, got 'abc'"),
+        ("session.json", {"pixels_per_degree": -1}, "pixels_per_degree: expected > 0, got -1"),
+        ("session.json", {"effects": ["blur"]}, "effects: expected a list of bleaching, "),
+        ("session.json", "{", "expected a JSON object, got text that is not JSON (Expecting"),
+        ("frames.csv", (3, "scene_index", "99999"), "row 3: scene_index: expected an input frame "
+            "from 0 to 121, got 99999"),
+        ("frames.csv", (2, "dt", "abc"), "row 2: dt: expected seconds > 0, got 'abc'"),
+        ("frames.csv", (4, "x", "abc"), "row 4: x: expected pixels (empty in a blink), got 'abc'"),
+        ("frames.csv", (2, "reset", "yes"), "row 2: reset: expected 0 or 1, got 'yes'"),
+        ("frames.csv", (3, "effects", "blur"), "row 3: effects: expected names of bleaching, "),
+        ("frames.csv", (2, "digest", "x,y"), "row 2: expected 9 cells, got 10"),
+        ("frames.csv", (1, "frame", "n"), "row 1: expected the columns frame,t,dt,x,y,scene_index"),
+    ],
+)  # fmt: skip
+def test_a_damaged_record_is_one_line(file, change, says, recorded, tmp_path, capsys):
+    """A record edited by hand or damaged: one line that names --replay DIR,
+    the file, its row or field, what was expected and what came; status 2
+    (tracebacks, or errors that named none of them, before)."""
+    _damage(recorded, file, change)
+    out = tmp_path / "out"
+    assert _status(["render", "--replay", str(recorded), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert err.startswith(f"jaxadapt: error: --replay: {recorded / file}"), err
+    assert says in err, err
+    assert not out.exists()
+
+
+def test_a_last_row_cut_short_is_left_out_with_a_warning(recorded, tmp_path, capsys):
+    """A view killed while writing a row leaves it cut short: the replay
+    warns and leaves it out; a last row without its line end alone is kept;
+    a row cut short before the last is an error. The rows end with LF."""
+    text = (recorded / "frames.csv").read_bytes()
+    assert b"\r" not in text and text.count(b"\n") == 4
+    (recorded / "frames.csv").write_bytes(text[:-1])  # its line end only: kept
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(read_record(recorded)[1]) == 3
+    (recorded / "frames.csv").write_bytes(text[:-30])
+    with pytest.warns(UserWarning, match=r"frames.csv, row 4: cut short"):
+        assert [row["frame"] for row in read_record(recorded)[1]] == [0, 1]
+    out = tmp_path / "out"
+    argv = ["render", "--replay", str(recorded), "--out", str(out), "--format", "png"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert f"warning: --replay: {recorded}/frames.csv, row 4: cut short" in err, err
+    assert sorted(p.name for p in out.glob("frame_*")) == ["frame_00000.png", "frame_00001.png"]
+    (recorded / "frames.csv").write_bytes(text[:-30] + b"\n" + text[-30:])
+    assert _status([*argv[:4], str(tmp_path / "o2")]) == 2
+    assert "frames.csv, row 4: expected 9 cells, got " in capsys.readouterr().err
 
 
 def test_files_are_shrunk_to_fit_and_played_in_a_loop(tmp_path):

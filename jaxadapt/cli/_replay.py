@@ -3,7 +3,7 @@
 as a render writes its outputs."""
 
 import contextlib
-import json
+import warnings
 
 import numpy as np
 
@@ -45,25 +45,28 @@ def check(args, options):
         )
 
 
-def _record(path):
-    """The spec and frame rows of the record in ``path``, checked."""
-    from jaxadapt.viewer import read_record
+def _record(path, console):
+    """The spec, frame rows and frames (an iterator) of the record in
+    ``path``, checked before anything is written: an error of the record
+    names ``--replay`` and the file, row or field; its warnings are said."""
+    from jaxadapt.viewer import read_record, replay
 
     try:
-        spec, rows = read_record(path)
-    except FileNotFoundError as error:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            spec, rows = read_record(path)
+        frames = replay(path, (spec, rows))
+    except FileNotFoundError as error:  # (read_record's: replay's are ValueErrors)
         raise UsageError(
-            f"--replay: expected a folder recorded by jaxadapt view --record, got {path}: "
-            f"{str(error).removeprefix('record: ')}"
+            f"--replay: expected a folder recorded by jaxadapt view --record, got {path}: {error}"
         ) from None
-    except (json.JSONDecodeError, KeyError) as error:
-        raise UsageError(
-            f"--replay: expected a record written by jaxadapt view, got {path} whose "
-            f"session.json or frames.csv does not read ({error})"
-        ) from None
+    except ValueError as error:
+        raise UsageError(f"--replay: {error}") from None
+    for warning in caught:
+        console.print(f"warning: --replay: {warning.message}", markup=False)
     if not rows:
         raise UsageError(f"--replay: the record in {path} holds no frames")
-    return spec, rows
+    return spec, rows, frames
 
 
 def render(args, console):
@@ -73,10 +76,10 @@ def render(args, console):
     adaptation luminance) and its plot. Each frame's digest is checked
     against the record's; a mismatch is warned, with the frames that differ.
     """
-    from jaxadapt import figures, io, pipeline, viewer
+    from jaxadapt import figures, io, pipeline
 
     path = args.replay
-    spec, rows = _record(path)
+    spec, rows, frames = _record(path, console)
     formats = args.formats or list(REPLAY_FORMATS)
     if not spec.get("complete", False):
         console.print(
@@ -84,7 +87,7 @@ def render(args, console):
             f"{len(rows)} frames it recorded",
             markup=False,
         )
-    dt = np.array([float(r["dt"]) for r in rows])
+    dt = np.array([r["dt"] for r in rows])
     fps = len(dt) / float(dt.sum())
     if "mp4" in formats and fps < MP4_MIN_FPS:
         raise UsageError(
@@ -110,7 +113,7 @@ def render(args, console):
 
             submit = stack.enter_context(pipeline.behind(write))
             clock = 0.0
-            for frame, row in zip(viewer.replay(path), rows, strict=True):
+            for frame, row in zip(frames, rows, strict=True):
                 if frame.digest != row["digest"]:
                     differ.append(frame.index)
                 if frame.index in shown:

@@ -15,9 +15,6 @@ from jaxadapt.cli._options import (
 )
 from jaxadapt.cli._output import _report
 
-#: The operators the viewer runs (those with a per-frame ``step`` and gaze).
-VIEW_OPERATORS = ("jacobs2015", "pattanaik2000")
-
 
 def _port(text):
     try:
@@ -53,6 +50,7 @@ def _input_options():
     from jaxadapt.operators.jacobs2015 import EFFECTS
     from jaxadapt.scenes import SCENES
     from jaxadapt.viewer import DEFAULT_SCENE, DEFAULT_SIZE
+    from jaxadapt.viewer._session import VIEW_OPERATORS
 
     return (
         (("files",), dict(nargs="*", metavar="FILE", help="HDR input (EXR, HDR, PFM, float "
@@ -144,11 +142,8 @@ def view(args, console):
         raise UsageError(
             f"view: needs {error.name}, of the viewer extra: pip install 'jaxadapt[viewer]'"
         ) from None
-    if args.record is not None and (args.record / "session.json").exists():
-        raise UsageError(
-            f"--record: {args.record} holds a recorded session already (session.json); "
-            "choose another folder"
-        )
+    if args.record is not None:
+        Recorder.check(args.record)
     try:
         session = Session(spec)
     except MemoryError:

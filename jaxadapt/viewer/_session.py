@@ -11,6 +11,8 @@ import csv
 import hashlib
 import json
 import math
+import re
+import warnings
 from collections import OrderedDict
 from pathlib import Path
 from typing import NamedTuple
@@ -33,6 +35,8 @@ DEFAULT_SCENE = "patches"
 FRAME_CACHE_BYTES = 256 * 2**20
 #: The columns of ``frames.csv`` in a record.
 FRAME_COLUMNS = ("frame", "t", "dt", "x", "y", "scene_index", "effects", "reset", "digest")
+#: The operators the viewer runs: those with a per-frame ``step`` that takes the gaze.
+VIEW_OPERATORS = ("jacobs2015", "pattanaik2000")
 
 
 class Frame(NamedTuple):
@@ -74,6 +78,47 @@ class Frame(NamedTuple):
     def digest(self):
         """First 16 hex digits of the SHA-256 of the frame's pixels."""
         return hashlib.sha256(self.pixels.tobytes()).hexdigest()[:16]
+
+
+def check_spec(spec):
+    """Refuse a :class:`Session` spec that it cannot run: a ValueError naming
+    the field, what was expected and what came (a record's ``session.json``
+    may have been edited by hand). The names come from the registries of
+    scenes, operators and effects."""
+    from jaxadapt._checks import check_value, check_whole
+    from jaxadapt.operators.jacobs2015 import EFFECTS
+    from jaxadapt.scenes import SCENES
+
+    _check_choice("operator", spec.get("operator", "jacobs2015"), VIEW_OPERATORS)
+    size = spec.get("size")
+    if not (isinstance(size, (list, tuple)) and len(size) == 2):
+        raise ValueError(f"size: expected [width, height] in pixels, got {size!r}")
+    for value in size:
+        check_whole("size", value, 2, "pixels")
+    files = spec.get("files") or []
+    if not (isinstance(files, (list, tuple)) and all(isinstance(f, (str, Path)) for f in files)):
+        raise ValueError(f"files: expected a list of HDR file paths, got {files!r}")
+    if not files:
+        _check_choice("scene", spec.get("scene") or DEFAULT_SCENE, sorted(SCENES))
+    for name in ("multiplier", "fps", "pixels_per_degree"):
+        if spec.get(name) is not None:
+            check_value(name, spec[name], _number(lambda v: np.isfinite(v) & (v > 0)), "> 0")
+    seed = check_whole("seed", spec.get("seed", 0))
+    check_value("seed", seed, lambda s: s <= np.iinfo(np.int64).max, "at most 2**63 - 1")
+    effects = spec.get("effects", [])
+    if not (isinstance(effects, (list, tuple)) and all(e in EFFECTS for e in effects)):
+        raise ValueError(f"effects: expected a list of {', '.join(EFFECTS)}, got {effects!r}")
+
+
+def _check_choice(name, value, choices):
+    if not (isinstance(value, str) and value in choices):
+        raise ValueError(f"{name}: expected one of {', '.join(choices)}, got {value!r}")
+
+
+def _number(ok):
+    """``ok`` for :func:`jaxadapt._checks.check_value` that first refuses
+    what is not one real number (text, a bool, a list, null)."""
+    return lambda v: v.ndim == 0 and v.dtype.kind in "iuf" and bool(ok(v))
 
 
 def open_source(spec):
@@ -119,7 +164,8 @@ class Session:
         (HDR paths; ``fps``, frames/s, optional), ``size`` ``(W, H)``
         pixels, and optionally ``multiplier``, ``operator`` (jacobs2015 or
         pattanaik2000), ``seed``, ``pixels_per_degree`` and ``effects``
-        (names of :data:`jaxadapt.operators.jacobs2015.EFFECTS` on).
+        (names of :data:`jaxadapt.operators.jacobs2015.EFFECTS` on);
+        checked (:func:`check_spec`).
     """
 
     def __init__(self, spec):
@@ -127,6 +173,7 @@ class Session:
 
         from jaxadapt.operators import OPERATORS, jacobs2015
 
+        check_spec(spec)
         self.spec = dict(spec)
         self.operator = self.spec.setdefault("operator", "jacobs2015")
         self.op = OPERATORS[self.operator]
@@ -276,20 +323,33 @@ class Recorder:
     time since the session started, which ``jaxadapt render --gaze`` reads)."""
 
     def __init__(self, path, spec):
+        from jaxadapt.io import csv_writer
+
+        self.check(path)
         self.path = Path(path)
-        if (self.path / "session.json").exists():
-            raise ValueError(
-                f"--record: expected a folder without a recorded session, got {self.path}, "
-                "which holds one (session.json); choose another folder"
-            )
         self.path.mkdir(parents=True, exist_ok=True)
         self.spec = {**spec, "files": [str(f) for f in spec.get("files") or []]}
         self.count, self.clock = 0, 0.0
         self._write_session(complete=False)
         self._frames = open(self.path / "frames.csv", "w", newline="")
-        self._rows = csv.writer(self._frames)
+        self._rows = csv_writer(self._frames)
         self._rows.writerow(FRAME_COLUMNS)
         self._gaze = []  # (time since the start, x, y) of each frame
+
+    @staticmethod
+    def check(path):
+        """Refuse ``path`` for a record before anything is computed (a
+        ValueError naming ``--record``): a file, a path under a file, or a
+        folder that holds a recorded session already."""
+        path = Path(path)
+        wrong = _not_a_folder(path)
+        if wrong:
+            raise ValueError(f"--record: {wrong}")
+        if (path / "session.json").exists():
+            raise ValueError(
+                f"--record: expected a folder without a recorded session, got {path}, "
+                "which holds one (session.json); choose another folder"
+            )
 
     def _write_session(self, complete):
         from jaxadapt import __version__
@@ -322,38 +382,153 @@ class Recorder:
         self._write_session(complete=True)
 
 
-def read_record(path):
-    """The spec (``session.json``) and frame rows (``frames.csv``, dicts of
-    numbers and strings) of a record written by ``jaxadapt view --record``."""
+def _not_a_folder(path):
+    """What is wrong with ``path`` as a folder (a file, or under one), or None."""
     path = Path(path)
+    found = next(p for p in (path, *path.parents) if p.exists() or p == p.parent)
+    if found.exists() and not found.is_dir():
+        if found == path:
+            return f"expected a folder, got the file {path}"
+        return f"expected a folder, got {path}, under the file {found}"
+    return None
+
+
+def read_record(path):
+    """The spec (``session.json``) and frame rows (``frames.csv``: dicts of
+    :data:`FRAME_COLUMNS`, numbers, ``x`` and ``y`` NaN in a blink, and
+    strings) of a record written by ``jaxadapt view --record``, checked.
+
+    Raises FileNotFoundError where a file is missing, and ValueError that
+    names the file, its row (counted as a spreadsheet shows them, the
+    header being row 1) or field, what was expected and what came. A last
+    row cut short, as a view stopped while writing it leaves it, is left
+    out with a warning.
+    """
+    path = Path(path)
+    wrong = _not_a_folder(path)
+    if wrong:
+        raise ValueError(wrong)
+    json_path, csv_path = path / "session.json", path / "frames.csv"
     try:
-        spec = json.loads((path / "session.json").read_text())
-        with open(path / "frames.csv", newline="") as f:
-            rows = list(csv.DictReader(f))
+        spec_text, text = json_path.read_text("utf-8"), csv_path.read_text("utf-8")
     except FileNotFoundError as error:
-        raise FileNotFoundError(f"record: {error.filename}: no such file") from None
+        raise FileNotFoundError(f"{error.filename}: no such file") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: expected UTF-8 text files, got {error.reason}") from None
+    try:
+        try:
+            spec = json.loads(spec_text)
+        except json.JSONDecodeError as error:
+            raise ValueError(
+                f"expected a JSON object, got text that is not JSON ({error})"
+            ) from None
+        if not isinstance(spec, dict):
+            raise ValueError(f"expected a JSON object, got {spec_text[:40]!r}")
+        check_spec(spec)
+    except ValueError as error:
+        raise ValueError(f"{json_path}: {error}") from None
+    lines = text.splitlines()
+    header, *cells = csv.reader(lines) if lines else [[]]
+    if header != list(FRAME_COLUMNS):
+        raise ValueError(
+            f"{csv_path}, row 1: expected the columns {','.join(FRAME_COLUMNS)}, "
+            f"got {','.join(header) or 'an empty file'}"
+        )
+    rows = []
+    for n, row in enumerate(cells, 2):
+        try:
+            rows.append(_frame_row(row))
+        except ValueError as error:
+            if n == len(lines) and not text.endswith(("\n", "\r")):
+                warnings.warn(
+                    f"{csv_path}, row {n}: cut short, as a view stopped while writing it "
+                    f"leaves its last row ({error}); left out",
+                    stacklevel=2,
+                )
+                break
+            raise ValueError(f"{csv_path}, row {n}: {error}") from None
     return spec, rows
 
 
-def replay(path):
-    """Replay a recorded session: yield its :class:`Frame` s as the viewer
-    showed them, from the record's spec, ``dt``, gaze, input frame, effects
-    and resets of each frame (exactly: each frame's ``digest`` matches the
+def _frame_row(cells):
+    """A row of ``frames.csv`` (its cells) as a dict of values, checked."""
+    from jaxadapt._checks import check_value, check_whole
+    from jaxadapt.operators.jacobs2015 import EFFECTS
+
+    if len(cells) != len(FRAME_COLUMNS):
+        raise ValueError(f"expected {len(FRAME_COLUMNS)} cells, got {len(cells)}")
+    row = dict(zip(FRAME_COLUMNS, cells, strict=True))
+    number = {k: _read_number(v) for k, v in row.items()}
+    for name in ("frame", "scene_index"):
+        row[name] = check_whole(name, number[name])
+    check_value("t", number["t"], _number(np.isfinite), "a time in seconds")
+    check_value("dt", number["dt"], _number(lambda v: np.isfinite(v) & (v > 0)), "seconds > 0")
+    if row["x"] or row["y"]:  # (both empty: a blink)
+        for name in ("x", "y"):
+            check_value(name, number[name], _number(np.isfinite), "pixels (empty in a blink)")
+    effects = [] if row["effects"] in ("", "-") else row["effects"].split("+")
+    if not all(e in EFFECTS for e in effects):
+        raise ValueError(
+            f"effects: expected names of {', '.join(EFFECTS)} joined by +, or - for none, "
+            f"got {row['effects']!r}"
+        )
+    if row["reset"] not in ("0", "1"):
+        raise ValueError(f"reset: expected 0 or 1, got {row['reset']!r}")
+    if not re.fullmatch("[0-9a-f]{16}", row["digest"]):
+        raise ValueError(f"digest: expected 16 hex digits, got {row['digest']!r}")
+    x, y = (float(row[k] or "nan") for k in ("x", "y"))
+    times = {"t": float(number["t"]), "dt": float(number["dt"])}
+    return {**row, **times, "x": x, "y": y, "reset": row["reset"] == "1"}
+
+
+def _read_number(text):
+    """A cell as the number it reads as, else as it is (which the checks of
+    numbers refuse, naming it)."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def replay(path, record=None):
+    """Replay a recorded session: its :class:`Frame` s as the viewer showed
+    them, from the record's spec, ``dt``, gaze, input frame, effects and
+    resets of each frame (exactly: each frame's ``digest`` matches the
     recorded one, in a process with JAX's precision as recorded: float64
     off, as the command line runs; with it on, a dithered pixel can round
     the other way).
+
+    The record (``record``: what :func:`read_record` gave, where read
+    already) and its input are checked before the first frame, with the
+    errors of :func:`read_record`; an iterator of the frames is returned.
 
     Examples
     --------
     ``[f.digest for f in replay("session")]`` equals the ``digest`` column of
     ``session/frames.csv``.
     """
-    spec, rows = read_record(path)
+    path = Path(path)
+    spec, rows = read_record(path) if record is None else record
     spec = {k: v for k, v in spec.items() if k not in ("jaxadapt", "frames", "complete")}
-    session = Session(spec)
+    try:
+        session = Session(spec)
+    except (ValueError, OSError) as error:  # the input files
+        raise ValueError(f"{path / 'session.json'}: {error}") from None
+    count = len(session.source.times)
+    for n, row in enumerate(rows, 2):
+        if row["scene_index"] >= count:
+            raise ValueError(
+                f"{path / 'frames.csv'}, row {n}: scene_index: expected an input frame from 0 "
+                f"to {count - 1}, got {row['scene_index']}"
+            )
+    return _replayed(session, rows)
+
+
+def _replayed(session, rows):
     for row in rows:
-        if int(row["reset"]):
+        if row["reset"]:
             session.reset()
         session.set_effects(row["effects"])
-        gaze = (float(row["x"] or "nan"), float(row["y"] or "nan"))
-        yield session.advance(float(row["dt"]), gaze, int(row["scene_index"]))
+        yield session.advance(row["dt"], (row["x"], row["y"]), row["scene_index"])
