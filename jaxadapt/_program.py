@@ -20,6 +20,22 @@ SIGNALS = tuple(
 INTERRUPTED = "jaxadapt: interrupted; nothing was written to --out"
 
 
+def interrupted_message(argv):
+    """What the command of ``argv`` (the program's arguments) says on stderr
+    when interrupted, having written nothing: :data:`INTERRUPTED`, except
+    for ``view``, which has no ``--out`` and is interrupted only while it
+    starts (once serving, a signal stops it), before it records anything
+    into ``--record``. Read from the words alone: an interrupt can come
+    before the parser is imported."""
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command != "view":
+        return INTERRUPTED
+    recording = any(a == "--record" or a.startswith("--record=") for a in argv)
+    return "jaxadapt: interrupted while starting" + (
+        "; nothing was written to --record" if recording else ""
+    )
+
+
 #: Signals received before the command line took them over.
 _SIGNALLED = []
 
@@ -81,7 +97,7 @@ def run():
     except KeyboardInterrupt as e:  # before the command line took the signals
         for s in taken:
             signal.signal(s, signal.SIG_IGN)
-        print(INTERRUPTED, file=sys.stderr, flush=True)
+        print(interrupted_message(sys.argv[1:]), file=sys.stderr, flush=True)
         # Not through Python's finalisation: an import cut short (NumPy's,
         # JAX's) leaves its C extension half made, and finalising it can
         # crash the interpreter.

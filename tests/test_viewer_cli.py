@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 import warnings
+from pathlib import Path
 
 import aiohttp
 import jax
@@ -18,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from jaxadapt._program import SIGNALS
+from jaxadapt._program import SIGNALS, interrupted_message
 from jaxadapt.cli import main
 from jaxadapt.gaze import read_gaze_csv, write_gaze_csv
 from jaxadapt.viewer import (
@@ -263,6 +264,69 @@ def test_a_last_row_cut_short_is_left_out_with_a_warning(recorded, tmp_path, cap
     (recorded / "frames.csv").write_bytes(text[:-30] + b"\n" + text[-30:])
     assert _status([*argv[:4], str(tmp_path / "o2")]) == 2
     assert "frames.csv, row 4: expected 9 cells, got " in capsys.readouterr().err
+
+
+def test_an_interrupted_view_says_what_it_did_not_write():
+    """view has no --out: interrupted while it starts, it says so, and that
+    nothing is in --record where given."""
+    assert interrupted_message(["view", "--port", "0"]) == "jaxadapt: interrupted while starting"
+    assert interrupted_message(["view", "--record=r"]).endswith("; nothing was written to --record")
+    assert interrupted_message(["render", "--out", "view"]).endswith("written to --out")
+
+
+def _wait_for_signals_taken(pid, timeout=60.0):
+    """Wait until process ``pid`` handles SIGTERM, as the program does from
+    its first instruction (Python alone handles SIGINT only): a signal sent
+    before would meet the interpreter's start, not the program. Without
+    /proc, a fixed half second."""
+    status = Path(f"/proc/{pid}/status")
+    if not status.exists():
+        time.sleep(0.5)
+        return
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        caught = next(
+            (
+                int(line.split()[1], 16)
+                for line in status.read_text().splitlines()
+                if line.startswith("SigCgt:")
+            ),
+            0,
+        )
+        if caught >> (signal.SIGTERM - 1) & 1:
+            return
+        time.sleep(0.005)
+    raise AssertionError(f"process {pid} took no signals in {timeout} s")
+
+
+@pytest.mark.parametrize("when", ["importing", pytest.param("compiling", marks=pytest.mark.slow)])
+def test_ctrl_c_while_the_view_starts_is_130_and_records_nothing(when, tmp_path):
+    """Sent while the program imports JAX, or while it compiles (a signal
+    then waits for the compile): one line that does not speak of --out
+    (it did), status 130, and no record."""
+    record = tmp_path / "record"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxadapt", "view", "--no-browser", "--port", "0", *SMALL_ARGS]
+        + ["--record", str(record)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_signals,
+    )
+    try:
+        if when == "importing":
+            _wait_for_signals_taken(process.pid)
+        else:
+            assert process.stderr.readline().startswith("compiling jacobs2015")
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 128 + signal.SIGINT, err
+    assert err.splitlines()[-1:] == [
+        "jaxadapt: interrupted while starting; nothing was written to --record"
+    ]
+    assert "Traceback" not in err and not out and not record.exists()
 
 
 def test_files_are_shrunk_to_fit_and_played_in_a_loop(tmp_path):

@@ -7,7 +7,7 @@ import signal
 import sys
 
 from jaxadapt import runtime
-from jaxadapt._program import INTERRUPTED, interrupt_behind, take_signals
+from jaxadapt._program import interrupt_behind, interrupted_message, take_signals
 from jaxadapt.cli import psychometric, render, view
 from jaxadapt.cli._options import UsageError, _Parser, _version
 from jaxadapt.cli._output import _message
@@ -35,8 +35,9 @@ def main(argv=None):
     """Run the command of ``argv`` (by default the command line's); return its
     exit status. Signals interrupt it from the parsing of its arguments to
     its last line (:func:`_interruptible`): the one line of
-    :data:`~jaxadapt._program.INTERRUPTED` and the shell's status,
+    :func:`~jaxadapt._program.interrupted_message` and the shell's status,
     128 + the signal; 0 once the outputs are all in place."""
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
         with _interruptible():
             return _command(argv)
@@ -44,17 +45,17 @@ def main(argv=None):
         interrupt = interrupt_behind(e)
         if interrupt is None:
             raise
-        return _interrupted(interrupt)
+        return _interrupted(interrupt, argv)
     except KeyboardInterrupt as e:
-        return _interrupted(e)
+        return _interrupted(e, argv)
 
 
-def _interrupted(e):
-    """The status of a run interrupted by ``e`` (after its one line)."""
+def _interrupted(e, argv):
+    """The status of a run of ``argv`` interrupted by ``e`` (after its one line)."""
     if _WRITTEN.is_set():  # only a handler restored after the run can raise here
         return 0
     with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
-        print(INTERRUPTED, file=sys.stderr)
+        print(interrupted_message(argv), file=sys.stderr)
     return 128 + (e.args[0] if e.args else signal.SIGINT)
 
 

@@ -154,21 +154,42 @@ def view(args, console):
 
 
 async def _serve(session, args, token, record, console):
+    """Start the server (compile, then record), serve until a signal, stop.
+
+    A signal while it starts ends the run as interrupted once the compile
+    is done, before anything is recorded; once serving, it stops the server
+    and the run succeeds (status 0, the record complete), and a signal
+    after that is dropped."""
     import asyncio
+    import signal
     import webbrowser
 
     from jaxadapt._program import SIGNALS
+    from jaxadapt.cli._signals import _WRITTEN
     from jaxadapt.viewer import Server
 
     loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    for signum in SIGNALS:  # from here a signal stops the server cleanly
-        loop.add_signal_handler(signum, stop.set)
+    stop, signalled = asyncio.Event(), []
+    # (those the process was started ignoring stay ignored: nohup's SIGHUP)
+    previous = {s: signal.getsignal(s) for s in SIGNALS if signal.getsignal(s) != signal.SIG_IGN}
+    for signum in previous:  # from here a signal stops the server cleanly
+        loop.add_signal_handler(signum, lambda s=signum: (signalled.append(s), stop.set()))
+
+    def restore():
+        for signum, handler in previous.items():
+            loop.remove_signal_handler(signum)  # (which sets Python's default)
+            signal.signal(signum, handler)
+
+    def recorder():
+        if signalled:  # while compiling: nothing recorded, no serving
+            raise KeyboardInterrupt(signalled[0])
+        return None if record is None else record()
+
     server = Server(session, args.host, args.port, token)
     W, H = session.shape[1], session.shape[0]
     console.print(f"compiling {args.operator} for {W}x{H} frames")
     try:
-        url = await server.start(record, prepare=session.warm)
+        url = await server.start(recorder, prepare=session.warm)
     except OSError as error:
         if error.filename is not None:  # the record's folder, not the address
             raise
@@ -178,8 +199,7 @@ async def _serve(session, args, token, record, console):
         ) from None
     finally:
         if server.sim.ident is None:  # not started: the handlers go with the error
-            for signum in SIGNALS:
-                loop.remove_signal_handler(signum)
+            restore()
     _report(f"jaxadapt view: serving {url} (Ctrl-C stops)")
     if not args.no_browser:
         loop.run_in_executor(None, webbrowser.open, url)
@@ -191,8 +211,8 @@ async def _serve(session, args, token, record, console):
                 pass
     finally:
         await server.close()
-        for signum in SIGNALS:
-            loop.remove_signal_handler(signum)
+        _WRITTEN.set()  # the record complete: the run has succeeded
+        restore()
     if isinstance(server.sim.error, MemoryError):
         raise UsageError("out of memory; try a smaller --size")
     if server.sim.error is not None:
