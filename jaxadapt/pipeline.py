@@ -24,6 +24,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt import runtime
 from jaxadapt._checks import check_value, check_whole
 from jaxadapt.io import frame_rate, hdr_size, read_hdr
 
@@ -278,7 +279,9 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
     key : PRNG key, optional
         Key of the sequence, for the stochastic operators.
     budget : int
-        Bytes of frames held at once, for the default ``size``.
+        Bytes of frames held at once, for the default ``size``; also how
+        far the process may grow past its size after the first chunk
+        before freed memory is handed back (:class:`runtime.MemoryCeiling`).
 
     Yields
     ------
@@ -304,6 +307,7 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
             frames = jnp.asarray(source.frames(idx))
             yield idx, frames, jnp.asarray(source.gaze(idx), jnp.float32)
 
+    ceiling = runtime.MemoryCeiling(budget)
     with contextlib.closing(ahead(read())) as frames_ahead:
         for idx, frames, gaze in frames_ahead:
             if idx[0] == 0:  # (a state of None is that of an operator without one)
@@ -317,6 +321,8 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
             table = op.diagnostics_table(diag)
             table["t"] = source.times[idx]
             yield idx, _finite(np.asarray(out), idx, op), table
+            del out, diag
+            ceiling()  # the retained heap bounded, however long the sequence
 
 
 #: What a stage's queue holds after its last item.

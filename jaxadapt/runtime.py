@@ -9,9 +9,15 @@ faults cost as much as the computation (``benchmarks/README.md``).
 
 :func:`retain_freed_memory` asks glibc to serve every block from its heap and
 to keep what is freed there for the next call, so that later calls take no
-page faults. The price is that the process keeps its peak memory until it
-exits, as JAX keeps GPU memory by default.
-The command line turns it on; a library user opts in with one call.
+page faults. The price is that freed blocks stay resident, and a new buffer
+that fits none of the holes they leave extends the heap: over a long
+sequence the resident memory would grow. A :class:`MemoryCeiling`, checked
+between the chunks of a sequence (:func:`jaxadapt.pipeline.chunks`), hands
+the holes' pages back (:func:`release_freed_memory`) when the process has
+grown by a margin past its size after the first chunk, so that memory does
+not grow with the sequence. Not at every chunk: the next chunk would fault
+the pages in again, which is the cost retention avoids. The command line
+turns retention on; a library user opts in with one call.
 
 :func:`cache_compilations` keeps XLA's compiled programs on disk, so that a
 later run of the same command reuses them: compiling is much of a short
@@ -48,12 +54,80 @@ def retain_freed_memory():
         True if the settings were made; False where the C library is not
         glibc (macOS, Windows, musl), where nothing is changed.
     """
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+    libc = _glibc()
+    if libc is None:
         return False
-    libc = ctypes.CDLL(None)
     settings = ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, _NEVER_TRIM))
     made = [libc.mallopt(p, v) for p, v in settings]  # every one, even after a failure
     return all(made)
+
+
+def release_freed_memory():
+    """Hand the pages of the heap's free blocks back to the system.
+
+    glibc's ``malloc_trim(0)``: every free block's whole pages are returned
+    (the heap keeps its address range, so later buffers still find their
+    places in it, and only the pages they touch are faulted in again). Call
+    it where a batch's buffers have just been freed, as between the chunks
+    of a sequence: with :func:`retain_freed_memory` the holes would
+    otherwise stay resident and the heap grow with the sequence's length.
+
+    Returns
+    -------
+    bool
+        True if memory was handed back; False where nothing could be (the
+        C library is not glibc) or nothing was free.
+    """
+    libc = _glibc()
+    return libc is not None and bool(libc.malloc_trim(0))
+
+
+def resident_bytes():
+    """The process's resident memory, bytes (Linux's ``/proc/self/statm``);
+    None where the system does not say."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+class MemoryCeiling:
+    """Freed memory handed back when the process outgrows a ceiling.
+
+    The first call sets the ceiling at the resident memory then plus
+    ``margin`` bytes; each later call over it calls
+    :func:`release_freed_memory`. Called after each chunk of a sequence, it
+    bounds the heap that :func:`retain_freed_memory` keeps, whatever the
+    sequence's length, at the price of a chunk's page faults at each
+    release.
+
+    Parameters
+    ----------
+    margin : int
+        Bytes the process may grow by past its size after the first call.
+    """
+
+    def __init__(self, margin):
+        self.margin, self.ceiling = margin, None
+
+    def __call__(self):
+        """Release freed memory if the process is over the ceiling; whether it was."""
+        resident = resident_bytes()
+        if resident is None:
+            return False
+        if self.ceiling is None:
+            self.ceiling = resident + self.margin
+            return False
+        return resident > self.ceiling and release_freed_memory()
+
+
+def _glibc():
+    """The C library where it is glibc (whose ``mallopt`` and ``malloc_trim``
+    this module calls), else None."""
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return None
+    return ctypes.CDLL(None)
 
 
 def cache_compilations(folder=None):
