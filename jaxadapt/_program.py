@@ -20,6 +20,13 @@ SIGNALS = tuple(
 INTERRUPTED = "jaxadapt: interrupted; nothing was written to --out"
 
 
+def named_command(argv):
+    """The command the program's arguments ``argv`` name: their first word
+    that is not an option (the program's own options, ``--help`` and
+    ``--version``, take no value); None where there is none."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
 def interrupted_message(argv):
     """What the command of ``argv`` (the program's arguments) says on stderr
     when interrupted, having written nothing: :data:`INTERRUPTED`, except
@@ -27,8 +34,7 @@ def interrupted_message(argv):
     starts (once serving, a signal stops it), before it records anything
     into ``--record``. Read from the words alone: an interrupt can come
     before the parser is imported."""
-    command = next((a for a in argv if not a.startswith("-")), None)
-    if command != "view":
+    if named_command(argv) != "view":
         return INTERRUPTED
     recording = any(a == "--record" or a.startswith("--record=") for a in argv)
     return "jaxadapt: interrupted while starting" + (

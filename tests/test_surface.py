@@ -32,3 +32,37 @@ def test_importing_jaxadapt_imports_no_numerical_library():
         "assert not heavy, heavy; assert jaxadapt.io.__name__ == 'jaxadapt.io'"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize(
+    "argv, says", [(["--help"], "psychometric"), (["--version"], "jaxadapt "), ([], "COMMAND")]
+)
+def test_the_programs_own_options_import_no_numerical_library(argv, says):
+    # The program's help, version and usage error name the commands only; a
+    # command's options (its registries: JAX) are declared when it is run.
+    code = (
+        "import runpy, sys\n"
+        f"sys.argv = ['jaxadapt', *{argv!r}]\n"
+        "try:\n"
+        "    runpy.run_module('jaxadapt', run_name='__main__')\n"
+        "finally:\n"
+        "    print(sorted({'jax', 'numpy', 'scipy', 'colour'} & set(sys.modules)), "
+        "file=sys.stderr)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == (2 if not argv else 0), done.stderr
+    assert done.stderr.splitlines()[-1] == "[]", done.stderr
+    assert says in done.stdout + done.stderr
+
+
+def test_a_commands_parser_declares_its_options_only():
+    from jaxadapt.cli._main import build_parser
+
+    for command, option in [("render", "--operator"), ("view", "--port"), ("psychometric", None)]:
+        parser = build_parser(command)
+        sub = next(a for a in parser._actions if a.dest == "command")
+        for name, subparser in sub.choices.items():
+            declared = [a for a in subparser._actions if a.dest != "help"]
+            assert (name == command) == bool(declared), (command, name)
+        if option:
+            assert option in {s for a in sub.choices[command]._actions for s in a.option_strings}

@@ -2,21 +2,28 @@
 line and its outcome into the exit status."""
 
 import contextlib
+import importlib
 import os
 import signal
 import sys
 
 from jaxadapt import runtime
-from jaxadapt._program import interrupt_behind, interrupted_message, take_signals
-from jaxadapt.cli import psychometric, render, view
-from jaxadapt.cli._options import UsageError, _Parser, _version
+from jaxadapt._program import (
+    interrupt_behind,
+    interrupted_message,
+    named_command,
+    take_signals,
+)
+from jaxadapt.cli._options import COMMANDS, UsageError, _Parser, _version
 from jaxadapt.cli._output import _message
 from jaxadapt.cli._signals import _SIGNALLED, _WRITTEN, _interruptible
 
 
-def build_parser():
-    """The program's parser: its options, and each command's (declared by
-    the command's module)."""
+def build_parser(command=None):
+    """The program's parser: its options, and the options of ``command``
+    (declared by the command's module). The other commands are named with
+    their line of help only, so that ``jaxadapt --help`` and ``--version``
+    do not import the registries that a command's options list (JAX)."""
 
     parser = _Parser(
         prog="jaxadapt",
@@ -25,9 +32,11 @@ def build_parser():
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    render.add_parser(sub)
-    psychometric.add_parser(sub)
-    view.add_parser(sub)
+    for name, line in COMMANDS.items():
+        if name == command:
+            importlib.import_module(f"{__package__}.{name}").add_parser(sub)
+        else:
+            sub.add_parser(name, help=line)
     return parser
 
 
@@ -63,7 +72,7 @@ def _command(argv):
     """Parse ``argv`` and run its command; its errors as one line and status 2."""
     from rich.console import Console
 
-    parser = build_parser()
+    parser = build_parser(named_command(argv))
     args = parser.parse_args(argv)
     runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
     runtime.cache_compilations()  # later runs reuse this one's compiled programs
@@ -75,14 +84,7 @@ def _command(argv):
     if _SIGNALLED:  # an interrupt that a garbage-collector callback swallowed
         raise KeyboardInterrupt(_SIGNALLED[0])
     try:
-        if args.command == "render":
-            render.render(args, console)
-        elif args.command == "psychometric" and args.action == "simulate":
-            psychometric.simulate(args, console)
-        elif args.command == "psychometric":
-            psychometric.fit(args, console)
-        elif args.command == "view":
-            view.view(args, console)
+        args.run(args, console)
     except MemoryError:
         print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)
         return 2

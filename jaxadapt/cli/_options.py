@@ -9,11 +9,19 @@ import re
 import sys
 from pathlib import Path
 
-import numpy as np
-
 
 class UsageError(ValueError):
     """A problem with the command line or its inputs."""
+
+
+#: The commands, in the order ``jaxadapt --help`` lists them, and what each
+#: does in a line. The program imports a command's module (and with it the
+#: registries its options name: JAX) only when that command is run.
+COMMANDS = {
+    "render": "tone-map an HDR sequence with time-dependent adaptation (Pattanaik et al. 2000)",
+    "psychometric": "analyse constant-stimuli experiments (Jacobs et al. 2015, §4)",
+    "view": "look around an HDR scene live in the browser, the pointer as the gaze",
+}
 
 
 def _size(text):
@@ -33,7 +41,7 @@ def _positive(text):
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (value > 0 and np.isfinite(value)):
+    if not (value > 0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return value
 
@@ -78,7 +86,7 @@ def _frame_rate(text):
         value = float(numerator) / float(denominator) if slash else float(text)
     except (ValueError, ZeroDivisionError):
         value = math.nan
-    if not (value > 0 and np.isfinite(value)):
+    if not (value > 0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError(
             f"expected a positive number of frames per second (30, 29.97, 24000/1001), got {text!r}"
         )

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxadapt.cli._options import UsageError, _folder, _seed
+from jaxadapt.cli._options import COMMANDS, UsageError, _folder, _seed
 from jaxadapt.cli._output import _report
 from jaxadapt.cli._staging import FIT_OUTPUTS, _staged
 
@@ -15,11 +15,11 @@ def add_parser(sub):
     """Declare ``jaxadapt psychometric fit`` and ``simulate`` on the subparsers ``sub``."""
     psychometric = sub.add_parser(
         "psychometric",
-        help="analyse constant-stimuli experiments (Jacobs et al. 2015, §4)",
+        help=COMMANDS["psychometric"],
         description="Psychometric analysis of a method-of-constant-stimuli experiment.",
     )
     psy = psychometric.add_subparsers(dest="action", required=True, metavar="ACTION")
-    fit = psy.add_parser(
+    fit_parser = psy.add_parser(
         "fit",
         help="fit cumulative Gaussians per participant and condition, and compare conditions",
         description="Fit P(x) = Phi((x - PSE) / sigma) by maximum likelihood (a probit GLM, "
@@ -30,8 +30,9 @@ def add_parser(sub):
         "into --out.",
     )
     for flags, kwargs in _FIT_OPTIONS:
-        fit.add_argument(*flags, **kwargs)
-    simulate = psy.add_parser(
+        fit_parser.add_argument(*flags, **kwargs)
+    fit_parser.set_defaults(run=fit)
+    simulate_parser = psy.add_parser(
         "simulate",
         help="simulate an experiment of the 2015 paper with model observers",
         description="Simulate the afterimage or mesopic experiment of Jacobs et al. (2015, "
@@ -43,7 +44,8 @@ def add_parser(sub):
         "stimuli.csv into --out.",
     )
     for flags, kwargs in _SIMULATE_OPTIONS:
-        simulate.add_argument(*flags, **kwargs)
+        simulate_parser.add_argument(*flags, **kwargs)
+    simulate_parser.set_defaults(run=simulate)
 
 
 # The options of each action as (flags, add_argument keywords), in the order

@@ -8,7 +8,7 @@ import re
 import numpy as np
 
 from jaxadapt.cli import _replay
-from jaxadapt.cli._options import FPS_RANGE, MP4_MIN_FPS, UsageError
+from jaxadapt.cli._options import COMMANDS, FPS_RANGE, MP4_MIN_FPS, UsageError
 from jaxadapt.cli._output import _report, _video_and_progress
 from jaxadapt.cli._render_options import (
     _OUTPUT_OPTIONS,
@@ -24,9 +24,9 @@ from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 def add_parser(sub):
     """Declare ``jaxadapt render`` and its options on the subparsers ``sub``."""
-    render = sub.add_parser(
+    parser = sub.add_parser(
         "render",
-        help="tone-map an HDR sequence with time-dependent adaptation (Pattanaik et al. 2000)",
+        help=COMMANDS["render"],
         description="Tone-map an HDR frame sequence (absolute cd/m2) the way an observer "
         "whose eyes adapt over time would see it on an ordinary display (Pattanaik et al. "
         "2000), or with one of the classic tone curves (--operator). With no FILE, renders "
@@ -39,7 +39,8 @@ def add_parser(sub):
         *_adaptation_options(),
         *_OUTPUT_OPTIONS,
     ):
-        render.add_argument(*flags, **kwargs)
+        parser.add_argument(*flags, **kwargs)
+    parser.set_defaults(run=render)
 
 
 CONTACT_FRAMES = 12

@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from jaxadapt.cli._options import (
+    COMMANDS,
     UsageError,
     _folder,
     _frame_rate,
@@ -30,16 +31,17 @@ def _port(text):
 
 def add_parser(sub):
     """Declare ``jaxadapt view`` and its options on the subparsers ``sub``."""
-    view = sub.add_parser(
+    parser = sub.add_parser(
         "view",
-        help="look around an HDR scene live in the browser, the pointer as the gaze",
+        help=COMMANDS["view"],
         description="Serve a page that shows the operator's frames live and takes the "
         "pointer over them (or an eye tracker's samples sent to /gaze) as the gaze. The "
         "simulation advances by the wall-clock time between frames, so adaptation and "
         "afterimages keep their real time course. Ctrl-C stops it.",
     )
     for flags, kwargs in (*_input_options(), *_server_options()):
-        view.add_argument(*flags, **kwargs)
+        parser.add_argument(*flags, **kwargs)
+    parser.set_defaults(run=view)
 
 
 # The options as (flags, add_argument keywords), in the order --help lists them.
