@@ -19,12 +19,12 @@ import jax
 import jax.numpy as jnp
 import matplotlib.image
 import numpy as np
+import processes
 import pytest
 import statsmodels.api as sm
 from scipy.stats import mannwhitneyu
 
 from jaxadapt import io, pipeline, runtime
-from jaxadapt._program import SIGNALS
 from jaxadapt.cli import _signals, _staging, main
 from jaxadapt.cli._output import _message
 from jaxadapt.operators import pattanaik2000 as op
@@ -40,32 +40,16 @@ def _run(capsys, *argv):
     return status, capsys.readouterr().err
 
 
-def _default_signals(*ignored):
-    """A ``preexec_fn`` that gives a child process the default disposition
-    of each signal the command line handles, then ignores ``ignored``: a
-    suite started in the background or under nohup ignores SIGINT or
-    SIGHUP, passes that on to its children, and the command line rightly
-    keeps such signals ignored."""
-
-    def reset():
-        for s in SIGNALS:
-            signal.signal(s, signal.SIG_DFL)
-        for s in ignored:
-            signal.signal(s, signal.SIG_IGN)
-
-    return reset
-
-
 def _start(*argv, ignored=()):
     """``python -m jaxadapt ARGV`` started in a process of its own with the
     default signal dispositions but ``ignored``, its stderr piped (text),
     its stdout discarded."""
-    return subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", *argv],
+    return processes.python(
+        ["-m", "jaxadapt", *argv],
+        ignored,
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         text=True,
-        preexec_fn=_default_signals(*ignored),
     )
 
 
@@ -1406,13 +1390,11 @@ def test_a_signal_after_the_command_leaves_its_status(tmp_path):
         "cli.main = main\n"
         "cli.run()\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        preexec_fn=_default_signals(),
+    process = processes.python(
+        ["-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
-    assert (done.returncode, done.stderr) == (0, "")
+    stderr = process.communicate(timeout=120)[1]
+    assert (process.returncode, stderr) == (0, "")
 
 
 def test_a_signal_after_the_outputs_are_in_place_is_a_success(tmp_path, capsys, monkeypatch):
