@@ -226,6 +226,10 @@ def _damage(path, file, change):
         ("frames.csv", (3, "effects", "blur"), "row 3: effects: expected names of bleaching, "),
         ("frames.csv", (2, "digest", "x,y"), "row 2: expected 9 cells, got 10"),
         ("frames.csv", (1, "frame", "n"), "row 1: expected the columns frame,t,dt,x,y,scene_index"),
+        ("frames.csv", (3, "frame", "2"), "row 3: frame: expected frame 1, the one after frame 0, "
+            "got 2 (rows removed or reordered"),
+        ("frames.csv", (2, "frame", "1"), "row 2: frame: expected frame 0, the one after the "
+            "header, got 1"),
     ],
 )  # fmt: skip
 def test_a_damaged_record_is_one_line(file, change, says, recorded, tmp_path, capsys):
@@ -240,6 +244,21 @@ def test_a_damaged_record_is_one_line(file, change, says, recorded, tmp_path, ca
     assert err.startswith(f"jaxadapt: error: --replay: {recorded / file}"), err
     assert says in err, err
     assert not out.exists()
+
+
+def test_a_record_with_a_row_removed_names_the_first_gap(recorded, tmp_path, capsys):
+    """Rows deleted from frames.csv: the replay could only differ (it said
+    so, blaming another jaxadapt version or machine); it names the gap."""
+    lines = (recorded / "frames.csv").read_text().splitlines(keepends=True)
+    (recorded / "frames.csv").write_text("".join(lines[:2] + lines[3:]))
+    assert _status(["render", "--replay", str(recorded), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"jaxadapt: error: --replay: {recorded / 'frames.csv'}, row 3: frame: expected frame 1, "
+        "the one after frame 0, got 2 (rows removed or reordered: a replay needs every frame "
+        "in order)\n"
+    )
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_last_row_cut_short_is_left_out_with_a_warning(recorded, tmp_path, capsys):

@@ -447,6 +447,13 @@ def read_record(path):
                 )
                 break
             raise ValueError(f"{csv_path}, row {n}: {error}") from None
+    for n, row in enumerate(rows):  # a frame's state follows from all before it
+        if row["frame"] != n:
+            raise ValueError(
+                f"{csv_path}, row {n + 2}: frame: expected frame {n}, the one after "
+                f"{'the header' if n == 0 else f'frame {n - 1}'}, got {row['frame']} "
+                "(rows removed or reordered: a replay needs every frame in order)"
+            )
     return spec, rows
 
 
