@@ -72,6 +72,26 @@ def test_a_condition_without_determined_pses_has_no_group_test(tmp_path, capsys)
     assert (row["p_exact"], row["n"], row["n_control"]) == ("false", "0", "3")
 
 
+@pytest.mark.slow
+def test_kept_undetermined_pses_are_said_as_the_priors(tmp_path, capsys):
+    # With --keep-undetermined the medians of all-"yes" groups are PSEs the
+    # fit's prior placed far off; the headline said "median PSE -728923 vs
+    # -728923" as if they were measured.
+    rows = ["participant,condition,level,response"]
+    for participant in ("p1", "p2"):
+        for condition in ("control", "manip"):
+            rows += [f"{participant},{condition},{level},1" for level in (-0.2, 0.0, 0.2)]
+    (tmp_path / "trials.csv").write_text("\n".join(rows) + "\n")
+    argv = ["psychometric", "fit", str(tmp_path / "trials.csv"), "--resamples", "0"]
+    status, stdout, err = _run(capsys, *argv, "--keep-undetermined", "--out", str(tmp_path / "k"))
+    assert status == 0, err
+    said = stdout.splitlines()[0]
+    (row,) = list(csv.DictReader(open(tmp_path / "k" / "group_test.csv")))
+    assert abs(float(row["median"])) > 1e3  # the prior's PSE, far off every level
+    assert said.startswith(f"manip vs control: median PSE {float(row['median']):+.3g} vs "), said
+    assert "(2 and 2 of these PSEs are the fit's prior's, not the data's)" in said, said
+
+
 def test_pse_figure_says_why_a_row_has_no_test(tmp_path):
     from types import SimpleNamespace
 

@@ -217,16 +217,33 @@ def fit(args, console):
         )
         _report(
             f"{row['condition']} vs {row['control']}: median PSE {_signed(row['median'])} vs "
-            f"{_signed(row['median_control'])} log units, {test}"
+            f"{_signed(row['median_control'])} log units"
+            f"{_set_by_prior(table, row) if args.keep_undetermined else ''}, {test}"
         )
     _report(f"wrote {', '.join(written)} to {out}/")
 
 
+def _set_by_prior(table, row):
+    """How many of the PSEs behind a group test's ``row`` the fit's prior set
+    (``--keep-undetermined``), said after its medians; empty where none."""
+    from jaxadapt.psychophysics.separation import undetermined
+
+    open_ = undetermined(np.asarray(table.flags))
+    condition = np.asarray(table.condition)
+    counts = [int(open_[condition == row[side]].sum()) for side in ("condition", "control")]
+    if not any(counts):
+        return ""
+    return f" ({counts[0]} and {counts[1]} of these PSEs are the fit's prior's, not the data's)"
+
+
 def _signed(value, digits=3):
     """``value`` with its sign and ``digits`` decimals, 0 as ``+0.000`` (not
-    ``-0.000``); NaN (no PSE to take the median of) as ``nan``."""
+    ``-0.000``), from 1000 log units in three significant digits (a PSE the
+    fit's prior placed far off); NaN (no PSE to take the median of) as ``nan``."""
     if np.isnan(value):
         return "nan"
+    if abs(value) >= 1e3:
+        return f"{value:+.3g}"
     return f"{round(value, digits) + 0.0:+.{digits}f}"
 
 
