@@ -293,6 +293,11 @@ def test_padding_groups_and_optional_group_columns(tmp_path):
             [["P1", "control", -0.2, 1], ["P1", "control", 0.2, 0]],
             "expected a header row naming the columns .* got the row P1, control, -0.2, 1$",
         ),
+        # a spreadsheet's semicolon-separated export: one cell a row
+        (
+            [["participant;condition;level;response"], ["p;c;0.1;1"]],
+            "expected columns separated by commas, got a header separated by semicolons",
+        ),
         ([HEADER + ["n_yes"], ["p", "c", 0, 1, 1]], "either a 'response' column"),
         ([HEADER + ["n_total"], ["p", "c", 0, 1, 9]], "either a 'response' column"),
         (

@@ -107,6 +107,12 @@ def _header(path, header):
             f"{', or '.join(_listed(f) for f in formats)}, and optionally "
             f"{_listed(OPTIONAL_COLUMNS)}"
         )
+        separator = _other_separator(header)
+        if separator:
+            raise ValueError(
+                f"{path}: expected columns separated by commas, got a header separated by "
+                f"{separator} ({header[0].strip()!r:.80}); save the table as comma-separated CSV"
+            )
         if any(_is_number(cell) for cell in header):  # data where the names belong
             raise ValueError(
                 f"{path}: expected a header row naming the columns ({expected}), got the "
@@ -117,6 +123,19 @@ def _header(path, header):
             f"got {', '.join(cell.strip() for cell in header)})"
         )
     return {c: columns.index(c) for c in required if c in columns}
+
+
+#: Separators of tables that are not comma-separated, as a spreadsheet in
+#: a locale with a decimal comma saves them, and their names.
+OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "vertical bars"}
+
+
+def _other_separator(header):
+    """The name of the separator a one-cell ``header`` row holds, as read
+    from a table that is not comma-separated; None where it holds none."""
+    if len(header) != 1:
+        return None
+    return next((name for sep, name in OTHER_SEPARATORS.items() if sep in header[0]), None)
 
 
 def _is_number(text):
