@@ -1245,6 +1245,29 @@ def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
     assert not [p for p in sim.iterdir() if p.name.startswith(".")]  # no staging left
 
 
+def test_psychometric_simulate_streams_observers_in_blocks(tmp_path, capsys, monkeypatch):
+    # A million observers grew the process until the kernel killed it: the
+    # observers now go in blocks, each written before the next is simulated.
+    from jaxadapt.psychophysics import experiment
+
+    args = ["psychometric", "simulate", "--protocol", "afterimage", "--observers", "5"]
+    assert _run(capsys, *args, "--out", str(tmp_path / "whole"))[0] == 0
+    blocks, simulate_in_chunks = [], experiment.simulate_in_chunks
+
+    def counted(*args, **kwargs):
+        for first, block in simulate_in_chunks(*args, **kwargs):
+            blocks.append(first)
+            yield first, block
+
+    monkeypatch.setattr(experiment, "CHUNK", 2)
+    monkeypatch.setattr(experiment, "simulate_in_chunks", counted)
+    assert _run(capsys, *args, "--out", str(tmp_path / "blocks"))[0] == 0
+    assert blocks == [0, 2, 4]
+    for name in ("trials.csv", "observers.csv", "stimuli.csv"):
+        whole, parts = (tmp_path / d / name for d in ("whole", "blocks"))
+        assert parts.read_bytes() == whole.read_bytes(), name
+
+
 @pytest.mark.parametrize(
     "args, words",
     [

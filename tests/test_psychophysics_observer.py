@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxadapt import io
 from jaxadapt.psychophysics import design, trials
 from jaxadapt.psychophysics import experiment as E  # noqa: N812
 from jaxadapt.psychophysics import observer as O  # noqa: N812
@@ -294,6 +295,31 @@ def test_trial_tables_round_trip_through_the_reader(tmp_path):
     np.testing.assert_array_equal(groups.levels, expected.levels)
     np.testing.assert_array_equal(groups.n_yes, expected.n_yes)
     np.testing.assert_array_equal(groups.n_total, expected.n_total)
+
+
+def test_an_experiment_in_blocks_equals_the_whole(tmp_path):
+    # Blocks of observers (as `psychometric simulate` streams them, memory
+    # flat in their number) give the whole experiment's observers, trials
+    # and answers, and the same tables.
+    pop = dataclasses.replace(Pop.POPULATIONS["afterimage"], noise=0.6)
+    stimuli, key = O.plain_stimuli(A), jax.random.key(10)
+    whole = E.simulate(key, A, stimuli, pop, 7)
+    blocks = list(E.simulate_in_chunks(key, A, stimuli, pop, 7, chunk=3))
+    assert [(first, len(b.excluded)) for first, b in blocks] == [(0, 3), (3, 3), (6, 1)]
+    joined = jax.tree.map(lambda *a: np.concatenate(a), *(b for _, b in blocks))
+    for x, y in zip(jax.tree.leaves(whole), jax.tree.leaves(joined), strict=True):
+        np.testing.assert_array_equal(x, y)
+    E.write_trials(tmp_path / "whole.csv", A, whole)
+    with open(tmp_path / "blocks.csv", "w", newline="") as f:
+        writer = io.csv_writer(f)
+        writer.writerow(E.TRIAL_COLUMNS)
+        for first, block in blocks:
+            E.append_trials(writer, A, block, first, 7)
+    assert (tmp_path / "blocks.csv").read_text() == (tmp_path / "whole.csv").read_text()
+    names = [
+        n for first, b in blocks for n in E.observer_table(A, stimuli, b, first, 7)["participant"]
+    ]
+    assert names == E.observer_table(A, stimuli, whole)["participant"] == E.participant_names(7)
 
 
 @pytest.mark.slow

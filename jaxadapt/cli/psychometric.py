@@ -331,11 +331,29 @@ def _weights(items, cues):
     return list(weights.values())
 
 
+def _write_stimuli(path, protocol, stimuli):
+    """``stimuli.csv``: each condition and level's differences of test and
+    standard, in log luminance and in each cue."""
+    from jaxadapt import io
+    from jaxadapt.psychophysics.observer import CUES
+    from jaxadapt.psychophysics.trials import csv_cell
+
+    d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
+    with open(path, "w", newline="") as f:
+        writer = io.csv_writer(f)
+        writer.writerow(["condition", "level", "d_log_luminance", *(f"d_{c}" for c in CUES)])
+        for c, condition in enumerate(protocol.conditions):
+            for i, level in enumerate(protocol.levels):
+                cells = [level, d_lum[c, i], *d_cues[c, i]]
+                writer.writerow([condition, *(csv_cell(v) for v in cells)])
+
+
 def simulate(args, console):
     """``jaxadapt psychometric simulate``: a simulated experiment into ``--out``."""
     import dataclasses
 
     import jax
+    from rich.progress import Progress
 
     from jaxadapt import io
     from jaxadapt.psychophysics import design
@@ -358,38 +376,34 @@ def simulate(args, console):
     with _staged(args.out, console) as staging:
         render_key, simulate_key = jax.random.split(jax.random.key(args.seed))
         stimuli = obs.render_stimuli(protocol, key=render_key)
-        experiment = simulated.simulate(simulate_key, protocol, stimuli, population, args.observers)
-        pse = np.asarray(jax.vmap(lambda o: obs.true_pse(stimuli, o))(experiment.observers))
-        observers = {
-            "participant": simulated.participant_names(args.observers),
-            **{
-                name: np.asarray(getattr(experiment.observers, name))
-                for name in ("noise", "bias", "order_bias", "lapse")
-            },
-            **{
-                f"weight_{cue}": np.asarray(experiment.observers.weights[:, i])
-                for i, cue in enumerate(obs.CUES)
-            },
-            **{f"pse_{c}": pse[:, i] for i, c in enumerate(protocol.conditions)},
-            "excluded": np.asarray(experiment.excluded),
-        }
-        d_lum, d_cues = (np.asarray(a) for a in stimuli.differences())
-        n_rows = simulated.write_trials(staging / "trials.csv", protocol, experiment)
-        with open(staging / "observers.csv", "w", newline="") as f:
-            writer = io.csv_writer(f)
-            writer.writerow(observers)
-            for row in zip(*observers.values(), strict=True):
-                writer.writerow([csv_cell(v) for v in row])
-        with open(staging / "stimuli.csv", "w", newline="") as f:
-            writer = io.csv_writer(f)
-            writer.writerow(
-                ["condition", "level", "d_log_luminance", *(f"d_{c}" for c in obs.CUES)]
-            )
-            for c, condition in enumerate(protocol.conditions):
-                for i, level in enumerate(protocol.levels):
-                    cells = [level, d_lum[c, i], *d_cues[c, i]]
-                    writer.writerow([condition, *(csv_cell(v) for v in cells)])
-    excluded = int(np.sum(experiment.excluded))
+        _write_stimuli(staging / "stimuli.csv", protocol, stimuli)
+        # Observers in blocks, each block's rows written before the next is
+        # simulated: memory does not grow with --observers.
+        bar = Progress(console=console, transient=True, disable=not console.is_terminal)
+        n_rows = excluded = 0
+        with (
+            open(staging / "trials.csv", "w", newline="") as trials_file,
+            open(staging / "observers.csv", "w", newline="") as observers_file,
+            bar,
+        ):
+            trial_writer, observer_writer = map(io.csv_writer, (trials_file, observers_file))
+            trial_writer.writerow(simulated.TRIAL_COLUMNS)
+            task = bar.add_task(f"simulating {args.observers} observers", total=args.observers)
+            for first, experiment in simulated.simulate_in_chunks(
+                simulate_key, protocol, stimuli, population, args.observers
+            ):
+                n_rows += simulated.append_trials(
+                    trial_writer, protocol, experiment, first, args.observers
+                )
+                table = simulated.observer_table(
+                    protocol, stimuli, experiment, first, args.observers
+                )
+                if first == 0:
+                    observer_writer.writerow(table)
+                for row in zip(*table.values(), strict=True):
+                    observer_writer.writerow([csv_cell(v) for v in row])
+                excluded += int(np.sum(table["excluded"]))
+                bar.advance(task, len(table["excluded"]))
     _report(
         f"{args.protocol}: {args.observers} observers, {excluded} excluded (training below "
         f"{protocol.exclusion:.0%} correct); wrote trials.csv ({n_rows} trials), "

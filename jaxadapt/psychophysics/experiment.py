@@ -25,8 +25,9 @@ from jaxadapt._checks import check_whole
 from jaxadapt.operators.checks import plain_errors
 from jaxadapt.psychophysics import design
 from jaxadapt.psychophysics import trials as trial_tables
-from jaxadapt.psychophysics.observer import Observer, _checked, respond
+from jaxadapt.psychophysics.observer import Observer, _checked, respond, true_pse
 from jaxadapt.psychophysics.population import _observer_key, draw_observers
+from jaxadapt.psychophysics.stimuli import CUES
 
 
 class Experiment(NamedTuple):
@@ -63,10 +64,10 @@ def run_observer(key, protocol, stimuli, observer):
 
 
 @eqx.filter_jit
-def _simulate_observers(key, protocol, stimuli, observers):
+def _simulate_observers(key, protocol, stimuli, observers, first=0):
     observers = _checked(observers, "observers")
     n = observers.noise.shape[0]
-    keys = jax.vmap(_observer_key, (None, 0))(key, jnp.arange(n))
+    keys = jax.vmap(_observer_key, (None, 0))(key, first + jnp.arange(n))
     trials, responses = jax.vmap(lambda k, o: run_observer(k, protocol, stimuli, o))(
         keys, observers
     )
@@ -143,23 +144,70 @@ def simulate(key, protocol, stimuli, population, n_observers):
     return _simulate_draws(draw_key, trial_key, protocol, stimuli, population, n)
 
 
+#: Observers :func:`simulate_in_chunks` simulates in one compiled call: each
+#: holds its trials and answers (a few kB), so a chunk takes tens of MB.
+CHUNK = 4096
+
+
+def simulate_in_chunks(key, protocol, stimuli, population, n_observers, chunk=None):
+    """The experiment of :func:`simulate` with the same arguments, in
+    consecutive blocks of at most ``chunk`` observers (default
+    :data:`CHUNK`): yields ``(first, experiment)``, the observers ``first``,
+    ``first + 1``, ... of the whole.
+
+    Observer ``i`` depends only on ``key`` and ``i``, so the blocks equal
+    the slices of the whole experiment, and memory does not grow with
+    ``n_observers``. Every block is simulated at the size of the first (the
+    last one padded, its extra observers dropped): one compilation.
+
+    Examples
+    --------
+    >>> from jaxadapt.psychophysics.population import POPULATIONS
+    >>> from jaxadapt.psychophysics.stimuli import plain_stimuli
+    >>> s, pop = plain_stimuli(design.AFTERIMAGE), POPULATIONS["afterimage"]
+    >>> blocks = simulate_in_chunks(jax.random.key(0), design.AFTERIMAGE, s, pop, 5, chunk=2)
+    >>> [(first, e.responses.shape) for first, e in blocks]
+    [(0, (2, 320)), (2, (2, 320)), (4, (1, 320))]
+    """
+    n = check_whole("n_observers", n_observers, least=1)
+    chunk = CHUNK if chunk is None else check_whole("chunk", chunk, least=1)
+    size = min(chunk, n)
+    draw_key, trial_key = jax.random.split(key)
+    for first in range(0, n, size):
+        block = _simulate_draws(
+            draw_key, trial_key, protocol, stimuli, population, size, jnp.asarray(first)
+        )
+        stop = min(size, n - first)
+        yield first, jax.tree.map(lambda a, stop=stop: a[:stop], block)
+
+
 @eqx.filter_jit
-def _simulate_draws(draw_key, trial_key, protocol, stimuli, population, n):
-    observers = draw_observers(draw_key, population, n)
-    return _simulate_observers(trial_key, protocol, stimuli, observers)
+def _simulate_draws(draw_key, trial_key, protocol, stimuli, population, n, first=0):
+    observers = draw_observers(draw_key, population, n, first)
+    return _simulate_observers(trial_key, protocol, stimuli, observers, first)
 
 
 # -- tables -------------------------------------------------------------------
 
 
-def participant_names(n):
-    """``s01, s02, ...``, zero-padded to the width of ``n``."""
+def participant_names(n, first=0, count=None):
+    """``s01, s02, ...``, zero-padded to the width of ``n``: the names of
+    the ``count`` observers from ``first`` (all ``n`` by default)."""
     width = max(2, len(str(n)))
-    return [f"s{i + 1:0{width}d}" for i in range(n)]
+    stop = n if count is None else first + count
+    return [f"s{i + 1:0{width}d}" for i in range(first, stop)]
 
 
-def trial_table(protocol, experiment):
+#: The columns of :func:`trial_table`, in the order written.
+TRIAL_COLUMNS = ("participant", "condition", "level", "response", "block", "test_first")
+
+
+def trial_table(protocol, experiment, first=0, total=None):
     """The analysed trials of the included observers, as columns.
+
+    ``experiment`` may be the block of observers ``first``, ``first + 1``,
+    ... of an experiment of ``total`` observers (:func:`simulate_in_chunks`),
+    which the participants' names count in (by default, all of it).
 
     Returns
     -------
@@ -173,8 +221,9 @@ def trial_table(protocol, experiment):
     """
     trials = jax.tree.map(np.asarray, experiment.trials)
     keep = ~trials.training & ~np.asarray(experiment.excluded)[:, None]
-    names = np.array(participant_names(keep.shape[0]), dtype=object)
-    who = np.broadcast_to(np.arange(keep.shape[0])[:, None], keep.shape)[keep]
+    count = keep.shape[0]
+    names = np.array(participant_names(total or count, first, count), dtype=object)
+    who = np.broadcast_to(np.arange(count)[:, None], keep.shape)[keep]
     return {
         "participant": names[who],
         "condition": np.array(protocol.conditions, dtype=object)[trials.condition[keep]],
@@ -191,13 +240,42 @@ def write_trials(path, protocol, experiment):
     ``block`` and ``test_first`` are ignored there). Levels are written
     exactly (:func:`~jaxadapt.psychophysics.trials.csv_cell`). The file
     appears only once complete. Returns the number of rows."""
-    table = trial_table(protocol, experiment)
     with io.atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
         writer = io.csv_writer(file)
-        writer.writerow(table)
-        for row in zip(*table.values(), strict=True):
-            writer.writerow([trial_tables.csv_cell(v) for v in row])
+        writer.writerow(TRIAL_COLUMNS)
+        return append_trials(writer, protocol, experiment)
+
+
+def append_trials(writer, protocol, experiment, first=0, total=None):
+    """Write the rows of :func:`trial_table` (its arguments) with the CSV
+    ``writer`` whose header :data:`TRIAL_COLUMNS` is written; returns
+    their number."""
+    table = trial_table(protocol, experiment, first, total)
+    for row in zip(*(table[c] for c in TRIAL_COLUMNS), strict=True):
+        writer.writerow([trial_tables.csv_cell(v) for v in row])
     return len(table["response"])
+
+
+def observer_table(protocol, stimuli, experiment, first=0, total=None):
+    """Each observer of ``experiment`` as a row of columns: its name (as in
+    :func:`trial_table`, whose ``first`` and ``total`` it takes), noise,
+    biases, lapse rate, cue weights ``weight_<cue>``, true PSE per condition
+    ``pse_<condition>`` (log10 units, :func:`~jaxadapt.psychophysics.observer.true_pse`)
+    and whether training excluded it."""
+    observers = experiment.observers
+    pse = np.asarray(jax.vmap(lambda o: true_pse(stimuli, o))(observers))
+    count = pse.shape[0]
+    return {
+        "participant": participant_names(total or count, first, count),
+        **{name: np.asarray(getattr(observers, name)) for name in OBSERVER_FIELDS},
+        **{f"weight_{cue}": np.asarray(observers.weights[:, i]) for i, cue in enumerate(CUES)},
+        **{f"pse_{c}": pse[:, i] for i, c in enumerate(protocol.conditions)},
+        "excluded": np.asarray(experiment.excluded),
+    }
+
+
+#: The scalar fields of an observer that :func:`observer_table` writes.
+OBSERVER_FIELDS = ("noise", "bias", "order_bias", "lapse")
 
 
 def groups(protocol, experiment):

@@ -115,10 +115,11 @@ def _observer_key(key, i):
     return jax.random.fold_in(key, i)
 
 
-def draw_observers(key, population, n):
-    """``n`` observers of a population; observer ``i`` depends only on ``key``
-    and ``i`` (not on ``n``)."""
-    keys = jax.vmap(_observer_key, (None, 0))(key, jnp.arange(n))
+def draw_observers(key, population, n, first=0):
+    """``n`` observers of a population, those numbered ``first`` to
+    ``first + n - 1``; observer ``i`` depends only on ``key`` and ``i`` (not
+    on ``n``), so consecutive blocks of observers join into one draw."""
+    keys = jax.vmap(_observer_key, (None, 0))(key, first + jnp.arange(n))
     dtype = jnp.result_type(population.noise)
     z = jax.vmap(lambda k: jax.random.normal(k, (N_NORMALS,), dtype))(keys)
     return observers_from_normals(population, z)
