@@ -100,6 +100,51 @@ def shrink(frame, width=CONTACT_WIDTH):
     return frame[:H, :W].reshape(H // f, f, W // f, f, -1).mean(axis=(1, 3), dtype=np.float32)
 
 
+def spread_frames(t, log_adaptation, count, among=None):
+    """Indices of ``count`` frames that show the course of a sequence, for a
+    contact sheet: evenly spaced along a path whose length is half the time
+    elapsed and half the change of log adaptation, each as a fraction of
+    the whole sequence's. The tiles follow the clock, and crowd where vision
+    adapts fastest (a tunnel's mouth and exit) rather than where nothing
+    changes. The first and last frames are always among them.
+
+    Parameters
+    ----------
+    t : array (T,)
+        Each frame's time, s.
+    log_adaptation : array (T,)
+        Each frame's adaptation luminance, log10 cd/m2 (an operator's
+        ``log_adaptation`` of its diagnostics); not finite counts as no change.
+    count : int
+    among : array of int, optional
+        The frames that may be chosen (those kept while streaming); all.
+
+    Returns
+    -------
+    numpy array of int, ascending: ``count`` indices (all of ``among`` where
+    there are no more).
+    """
+    t = np.asarray(t, float)
+    among = np.unique(np.arange(len(t)) if among is None else np.asarray(among, int))
+    if len(among) <= count:
+        return among
+    with np.errstate(invalid="ignore"):
+        step = np.abs(np.diff(np.asarray(log_adaptation, float)))
+    change = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    path = np.zeros(len(t))
+    for part in (t - t[0], change):
+        if part[-1] > 0:
+            path += part / part[-1]
+    if path[-1] <= 0:  # one instant, nothing changes: evenly in frames
+        path = np.arange(len(t), dtype=float)
+    at = path[among]
+    chosen = [0, len(among) - 1]
+    for target in np.linspace(at[0], at[-1], count)[1:-1]:
+        free = [k for k in range(len(among)) if k not in chosen]
+        chosen.append(min(free, key=lambda k: abs(at[k] - target)))
+    return np.sort(among[chosen])
+
+
 #: Height of the strip under each frame of a contact sheet that holds its label, pixels.
 LABEL_HEIGHT = 18
 

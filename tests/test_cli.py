@@ -1142,6 +1142,25 @@ def test_contact_sheet_labels_each_frame():
         figures.contact_sheet(np.zeros((3, 20, 60, 3), np.uint8), labels=["a", "b"])
 
 
+def test_the_contact_sheet_spans_the_sequence(tmp_path, capsys, monkeypatch):
+    # It showed the first 4 frames and 8 evenly spaced ones: 5 of the
+    # tunnel's 12 tiles fell in its first 0.13 s and none on the exit.
+    from jaxadapt import figures
+
+    sheets = []
+    contact_sheet = figures.contact_sheet
+    monkeypatch.setattr(
+        figures, "contact_sheet", lambda f, **k: sheets.append(k["labels"]) or contact_sheet(f, **k)
+    )
+    args = ["render", "--size", "48x32", "--duration", "20", "--fps", "5", "--format", "png"]
+    assert _run(capsys, *args, "--out", str(tmp_path / "o"))[0] == 0
+    (labels,) = sheets
+    times = [float(label.removesuffix(" s")) for label in labels]
+    assert len(times) == 12 and times[0] == 0 and times[-1] == pytest.approx(19.8)
+    assert sum(t < 1 for t in times) <= 2, times
+    assert any(12 < t < 15 for t in times), times  # the tunnel's exit
+
+
 def test_the_2015_diagnostics_plot_has_units_and_says_why_a_is_flat(tmp_path):
     # A and A_T sat at the 100 cd/m2 floor and rho ran to 2.7 with nothing
     # on the plot saying why; its y axes had no units.

@@ -257,3 +257,25 @@ def test_a_contact_frame_is_shrunk_by_whole_boxes_in_linear_light():
     np.testing.assert_allclose(small[1, 5], frame[3:6, 15:18].mean(axis=(0, 1)), rtol=1e-6)
     narrow = frame[:, :960]
     np.testing.assert_array_equal(figures.shrink(narrow, width=960), narrow)
+
+
+def test_contact_frames_follow_the_clock_and_crowd_where_adaptation_changes():
+    from jaxadapt import figures
+
+    t = np.arange(100) / 30
+    flat = np.zeros(100)
+    evenly = figures.spread_frames(t, flat, 12)
+    np.testing.assert_array_equal(evenly, np.linspace(0, 99, 12).round())
+    # a 3 log unit change over frames 60 to 66 (a tunnel's exit): half the
+    # path, so about half the tiles, where even spacing puts one
+    step = np.clip((np.arange(100) - 60) / 6, 0, 1) * 3.0
+    chosen = figures.spread_frames(t, step, 12)
+    assert len(chosen) == 12 and chosen[0] == 0 and chosen[-1] == 99
+    assert np.sum((chosen >= 60) & (chosen <= 66)) >= 4, chosen
+    assert np.max(np.diff(chosen)) <= 25, chosen  # the rest still spread over the clock
+    # only the frames kept can be shown; non-finite adaptation is no change
+    kept = np.arange(0, 100, 7)
+    with_black = np.where(np.arange(100) < 10, -np.inf, step)
+    picked = figures.spread_frames(t, with_black, 12, among=kept)
+    assert set(picked) <= set(kept) and len(picked) == 12
+    np.testing.assert_array_equal(figures.spread_frames(t, step, 12, among=[5, 3]), [3, 5])

@@ -43,7 +43,9 @@ def add_parser(sub):
     parser.set_defaults(run=render)
 
 
-CONTACT_FRAMES = 12
+#: Frames of the contact sheet (:func:`jaxadapt.figures.spread_frames` chooses
+#: them once the adaptation is known) and frames kept, shrunk, to choose from.
+CONTACT_FRAMES, CONTACT_CANDIDATES = 12, 64
 
 
 #: Size of a local background estimator unless --background-scale says otherwise, pixels.
@@ -236,7 +238,13 @@ def render(args, console):
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
-        sheet = figures.contact_sheet(np.stack(write.contact), labels=write.labels)
+        shown = figures.spread_frames(
+            table["t"], op.log_adaptation(table), CONTACT_FRAMES, among=list(write.kept)
+        )
+        sheet = figures.contact_sheet(
+            np.stack([write.kept[i] for i in shown]),
+            labels=[f"{source.times[i]:.3g} s" for i in shown],
+        )
         io.write_image(staging / "contact_sheet.png", sheet, encoding)
         plot(staging / "adaptation.png", table)
         names = sorted(path.name for path in staging.iterdir())
@@ -278,9 +286,10 @@ def _prepared(args, console):
 class _Outputs:
     """Writes a computed chunk ``(idx, linear frames)`` into the staging
     folder, in the write-behind thread: the frame files of ``formats``, the
-    video's frames (``send_video``) and the contact sheet's frames, kept in
-    :attr:`contact` with their times in :attr:`labels`; ``advance(n)`` says
-    that ``n`` more frames are written. ``coding``: the display encoding of
+    video's frames (``send_video``), and the frames the contact sheet may
+    show, shrunk and display-encoded in :attr:`kept` by index (at most
+    :data:`CONTACT_CANDIDATES`, evenly spaced); ``advance(n)`` says that
+    ``n`` more frames are written. ``coding``: the display encoding of
     8-bit outputs, and whether the operator's frames come display-encoded
     (jacobs2015)."""
 
@@ -291,10 +300,8 @@ class _Outputs:
         self.code_as = "linear" if encoded else self.encoding  # (display.ENCODINGS)
         T = len(source.times)
         self.digits = max(5, len(str(T - 1)))  # frame files sort in order
-        self.shown = set(range(min(4, T))) | set(
-            np.linspace(4, T - 1, CONTACT_FRAMES - 4).round().astype(int) if T > 4 else []
-        )
-        self.contact, self.labels = [], []
+        self.candidates = set(np.linspace(0, T - 1, min(T, CONTACT_CANDIDATES)).round().astype(int))
+        self.kept = {}
 
     def __call__(self, chunk):
         from jaxadapt import display, figures, io
@@ -303,9 +310,8 @@ class _Outputs:
         coded = None
         if {"png", "mp4"} & set(self.formats):
             coded = display.encode_uint8(linear, self.code_as)
-        for k in [k for k, i in enumerate(idx) if i in self.shown]:  # shrunk in linear light
-            self.contact.append(display.encode_uint8(figures.shrink(linear[k]), self.code_as))
-            self.labels.append(f"{self.source.times[idx[k]]:.3g} s")
+        for k in [k for k, i in enumerate(idx) if i in self.candidates]:  # shrunk in linear light
+            self.kept[idx[k]] = display.encode_uint8(figures.shrink(linear[k]), self.code_as)
         for k, i in enumerate(idx):
             name = f"frame_{i:0{self.digits}d}"
             if "png" in self.formats:

@@ -58,6 +58,10 @@ class Operator(Protocol):
     def diagnostics_table(self, diag) -> dict:
         """Per-frame columns of a ``Diagnostics``, NumPy arrays by name."""
 
+    def log_adaptation(self, table) -> Any:
+        """Each frame's adaptation luminance (log10 cd/m2) from the columns
+        of :meth:`diagnostics_table`: what a contact sheet follows."""
+
 
 class _Registry(Mapping):
     """Names to operator modules, each imported when first asked for."""

@@ -566,3 +566,10 @@ def diagnostics_table(diag):
     """Per-frame columns of a :class:`Diagnostics` (``t``, ``background``: the
     frame's geometric-mean background, cd/m2), numpy."""
     return {"t": np.asarray(diag.t), "background": np.asarray(diag.background)}
+
+
+def log_adaptation(table):
+    """Each frame's adaptation, log10 cd/m2: its background (the column
+    ``background`` of :func:`diagnostics_table`); -inf for a black frame."""
+    with np.errstate(divide="ignore"):
+        return np.log10(table["background"])

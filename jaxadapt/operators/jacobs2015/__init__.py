@@ -128,6 +128,7 @@ from jaxadapt.operators.jacobs2015._state import (
     State,
     diagnostics_notes,
     diagnostics_table,
+    log_adaptation,
 )
 from jaxadapt.operators.jacobs2015._tone import (
     adaptation_target,
@@ -177,6 +178,7 @@ __all__ = [
     "DIAGNOSTIC_UNITS",
     "diagnostics_notes",
     "diagnostics_table",
+    "log_adaptation",
     "step",
     "run",
 ]

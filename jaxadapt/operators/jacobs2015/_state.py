@@ -121,3 +121,9 @@ def diagnostics_table(diag):
         columns[f"C_{cone}"] = diag.C_gaze[:, i]
     columns["rho"] = diag.rho_gaze
     return {name: np.asarray(column) for name, column in columns.items()}
+
+
+def log_adaptation(table):
+    """Each frame's adaptation, log10 cd/m2: the column ``A`` (Eq 3) of
+    :func:`diagnostics_table`."""
+    return np.asarray(table["A"])

@@ -63,6 +63,7 @@ from jaxadapt.operators.pattanaik2000._params import (
     Params,
     State,
     diagnostics_table,
+    log_adaptation,
 )
 
 # The API, in the order of the single module it was (parameters,
@@ -76,6 +77,7 @@ __all__ = [
     "Observer",
     "Diagnostics",
     "diagnostics_table",
+    "log_adaptation",
     "luminance_response",
     "references",
     "display_references",

@@ -231,3 +231,12 @@ def diagnostics_table(diag):
         "curve": diag.curve,
     }
     return {name: np.asarray(column) for name, column in columns.items()}
+
+
+def log_adaptation(table):
+    """Each frame's adaptation, log10 cd/m2: the mean of the rods' and the
+    cones' log adaptation luminance (``A_rod``, ``A_cone`` of
+    :func:`diagnostics_table`), so that the slow dark adaptation of the rods
+    counts as the cones' does."""
+    with np.errstate(divide="ignore"):
+        return (np.log10(table["A_rod"]) + np.log10(table["A_cone"])) / 2
