@@ -6,7 +6,7 @@ the child, as JAX warns."""
 import subprocess
 import sys
 
-from jaxadapt._program import SIGNALS
+from jaxadapt._signals import SIGNALS
 
 # The child's first program: set the dispositions, then become ``python ARGS``
 # (an ignored signal stays ignored across exec, a handled one becomes default).

@@ -24,8 +24,8 @@ import pytest
 import statsmodels.api as sm
 from scipy.stats import mannwhitneyu
 
-from jaxadapt import io, pipeline, runtime
-from jaxadapt.cli import _signals, _staging, main
+from jaxadapt import _signals, io, pipeline, runtime
+from jaxadapt.cli import _staging, main
 from jaxadapt.cli._output import _message
 from jaxadapt.operators import pattanaik2000 as op
 
@@ -407,12 +407,12 @@ def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(
 
     interrupted_replace.sent = False
     monkeypatch.setattr(Path, "replace", interrupted_replace)
-    with _signals._interruptible(), _staging._staged(out, None) as staging:
+    with _signals.interruptible(), _staging._staged(out, None) as staging:
         for name in ("a.csv", "b.csv", "c.csv"):
             (staging / name).write_text("new")
     # Once all are in place the run has succeeded: the signal is dropped
     # (it raised after the move, and the run said it was interrupted).
-    assert _signals._WRITTEN.is_set() and _signals._SIGNALLED == [signal.SIGINT]
+    assert _signals.WRITTEN.is_set() and _signals.SIGNALLED == [signal.SIGINT]
     assert {p.name: p.read_text() for p in out.iterdir()} == dict.fromkeys(
         ("a.csv", "b.csv", "c.csv"), "new"
     )
@@ -435,10 +435,10 @@ def test_a_signal_as_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeyp
 
     monkeypatch.setattr(tempfile, "mkdtemp", signalled_mkdtemp)
     with pytest.raises(KeyboardInterrupt) as caught:
-        with _signals._interruptible(), _staging._staged(out, None) as staging:
+        with _signals.interruptible(), _staging._staged(out, None) as staging:
             (staging / "a.csv").write_text("new")
     assert caught.value.args == (signal.SIGTERM,)
-    assert not _signals._WRITTEN.is_set()
+    assert not _signals.WRITTEN.is_set()
     if existing:
         assert list(out.iterdir()) == []
     else:

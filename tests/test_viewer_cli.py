@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from jaxadapt._program import SIGNALS, interrupted_message
+from jaxadapt._signals import SIGNALS, interrupted_message
 from jaxadapt.cli import main
 from jaxadapt.gaze import read_gaze_csv, write_gaze_csv
 from jaxadapt.viewer import (

@@ -7,16 +7,10 @@ import os
 import signal
 import sys
 
-from jaxadapt import runtime
-from jaxadapt._program import (
-    interrupt_behind,
-    interrupted_message,
-    named_command,
-    take_signals,
-)
+from jaxadapt import _signals, runtime
+from jaxadapt._signals import interrupt_behind, interrupted_message, named_command
 from jaxadapt.cli._options import COMMANDS, UsageError, _Parser, _version
 from jaxadapt.cli._output import _message
-from jaxadapt.cli._signals import _SIGNALLED, _WRITTEN, _interruptible
 
 
 def build_parser(command=None):
@@ -43,12 +37,12 @@ def build_parser(command=None):
 def main(argv=None):
     """Run the command of ``argv`` (by default the command line's); return its
     exit status. Signals interrupt it from the parsing of its arguments to
-    its last line (:func:`_interruptible`): the one line of
-    :func:`~jaxadapt._program.interrupted_message` and the shell's status,
+    its last line (:func:`~jaxadapt._signals.interruptible`): the one line of
+    :func:`~jaxadapt._signals.interrupted_message` and the shell's status,
     128 + the signal; 0 once the outputs are all in place."""
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        with _interruptible():
+        with _signals.interruptible():
             return _command(argv)
     except Exception as e:
         interrupt = interrupt_behind(e)
@@ -61,7 +55,7 @@ def main(argv=None):
 
 def _interrupted(e, argv):
     """The status of a run of ``argv`` interrupted by ``e`` (after its one line)."""
-    if _WRITTEN.is_set():  # only a handler restored after the run can raise here
+    if _signals.WRITTEN.is_set():  # only a handler restored after the run can raise here
         return 0
     with contextlib.suppress(OSError):  # a terminal closed (SIGHUP) cannot be written to
         print(interrupted_message(argv), file=sys.stderr)
@@ -81,8 +75,7 @@ def _command(argv):
     import equinox as eqx
     import jax
 
-    if _SIGNALLED:  # an interrupt that a garbage-collector callback swallowed
-        raise KeyboardInterrupt(_SIGNALLED[0])
+    _signals.raise_swallowed()  # an interrupt that a garbage-collector callback dropped
     try:
         args.run(args, console)
     except MemoryError:
@@ -116,11 +109,11 @@ def run():
     virtual method called", "corrupted size vs. prev_size", a segmentation
     fault: status 134 or 139 instead of 143).
     """
-    take_signals(lambda signum, frame: _SIGNALLED.append(signum))  # main's restore these
+    _signals.take_signals(_signals.remember)  # main's restore these
     status = main()
     sys.stdout.flush()
     sys.stderr.flush()
-    if _SIGNALLED:
+    if _signals.SIGNALLED:
         os._exit(status)
     sys.exit(status)
 

@@ -9,8 +9,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from jaxadapt import _signals
 from jaxadapt.cli._options import UsageError
-from jaxadapt.cli._signals import _SIGNALLED, _WRITTEN, _signals_deferred
 
 #: Names of the files ``jaxadapt render`` writes.
 RENDER_OUTPUTS = re.compile(
@@ -47,8 +47,8 @@ def _staged(out, console, replaces=None, keep=()):
     are named in a warning on ``console``; a full device is said as such
     (:func:`_out_of_space`). Signals are deferred while the staging folder
     is made, the files moved and the folders removed
-    (:func:`_signals_deferred`); :data:`_WRITTEN` is set once the files are
-    in place.
+    (:func:`~jaxadapt._signals.signals_deferred`);
+    :data:`~jaxadapt._signals.WRITTEN` is set once the files are in place.
     """
     out = out.resolve()
     given = [Path(p) for p in keep]
@@ -74,7 +74,7 @@ def _staged(out, console, replaces=None, keep=()):
         _refuse_folders(out, [p.name for p in out.iterdir() if replaces.fullmatch(p.name)])
     staging = None
     try:
-        with _signals_deferred():  # a signal as it is made is raised where it is removed
+        with _signals.signals_deferred():  # a signal as it is made is raised where it is removed
             staging = _staging_folder(out)
             _remove_dead_staging(out)
         left = sorted(p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging)
@@ -86,21 +86,20 @@ def _staged(out, console, replaces=None, keep=()):
                 soft_wrap=True,
             )
         yield staging
-        with _signals_deferred():
-            if _SIGNALLED:  # an interrupt that Python ignored (_interruptible)
-                raise KeyboardInterrupt(_SIGNALLED[0])
+        with _signals.signals_deferred():
+            _signals.raise_swallowed()  # an interrupt that Python dropped
             _move_into_place(staging, out, replaces, keep)
-            _WRITTEN.set()
+            _signals.WRITTEN.set()
     except BaseException as e:
         full = not isinstance(e, UsageError) and _out_of_space(e, out)  # said already
-        with _signals_deferred():
-            if not _WRITTEN.is_set():
+        with _signals.signals_deferred():
+            if not _signals.WRITTEN.is_set():
                 unmake()
         if full:
             raise UsageError(f"--out: no space left on the device of {out}") from None
         raise
     finally:
-        with _signals_deferred():
+        with _signals.signals_deferred():
             if staging is not None:
                 shutil.rmtree(staging, ignore_errors=True)
 

@@ -166,8 +166,7 @@ async def _serve(session, args, token, record, console):
     import signal
     import webbrowser
 
-    from jaxadapt._program import SIGNALS
-    from jaxadapt.cli._signals import _WRITTEN
+    from jaxadapt._signals import SIGNALS, WRITTEN
     from jaxadapt.viewer import Server
 
     loop = asyncio.get_running_loop()
@@ -213,7 +212,7 @@ async def _serve(session, args, token, record, console):
                 pass
     finally:
         await server.close()
-        _WRITTEN.set()  # the record complete: the run has succeeded
+        WRITTEN.set()  # the record complete: the run has succeeded
         restore()
     if isinstance(server.sim.error, MemoryError):
         raise UsageError("out of memory; try a smaller --size")
