@@ -1143,8 +1143,8 @@ def test_contact_sheet_labels_each_frame():
 
 
 def test_the_contact_sheet_spans_the_sequence(tmp_path, capsys, monkeypatch):
-    # It showed the first 4 frames and 8 evenly spaced ones: 5 of the
-    # tunnel's 12 tiles fell in its first 0.13 s and none on the exit.
+    # The tunnel's 12 tiles span the drive, from its first to its last
+    # frame, few in its first second and one on the exit.
     from jaxadapt import figures
 
     sheets = []
@@ -1265,8 +1265,8 @@ def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
 
 
 def test_psychometric_simulate_streams_observers_in_blocks(tmp_path, capsys, monkeypatch):
-    # A million observers grew the process until the kernel killed it: the
-    # observers now go in blocks, each written before the next is simulated.
+    # The observers go in blocks, each written before the next is
+    # simulated (memory flat in their number), and the files are the same.
     from jaxadapt.psychophysics import experiment
 
     args = ["psychometric", "simulate", "--protocol", "afterimage", "--observers", "5"]

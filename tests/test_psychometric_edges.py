@@ -75,8 +75,7 @@ def test_a_condition_without_determined_pses_has_no_group_test(tmp_path, capsys)
 @pytest.mark.slow
 def test_kept_undetermined_pses_are_said_as_the_priors(tmp_path, capsys):
     # With --keep-undetermined the medians of all-"yes" groups are PSEs the
-    # fit's prior placed far off; the headline said "median PSE -728923 vs
-    # -728923" as if they were measured.
+    # fit's prior placed far off: the summary says they are the prior's.
     rows = ["participant,condition,level,response"]
     for participant in ("p1", "p2"):
         for condition in ("control", "manip"):

@@ -247,8 +247,8 @@ def test_a_damaged_record_is_one_line(file, change, says, recorded, tmp_path, ca
 
 
 def test_a_record_with_a_row_removed_names_the_first_gap(recorded, tmp_path, capsys):
-    """Rows deleted from frames.csv: the replay could only differ (it said
-    so, blaming another jaxadapt version or machine); it names the gap."""
+    """Rows deleted from frames.csv: a replay of the rest could only give
+    other frames, so it is refused, naming the first gap."""
     lines = (recorded / "frames.csv").read_text().splitlines(keepends=True)
     (recorded / "frames.csv").write_text("".join(lines[:2] + lines[3:]))
     assert _status(["render", "--replay", str(recorded), "--out", str(tmp_path / "o")]) == 2
