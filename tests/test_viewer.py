@@ -4,14 +4,17 @@ module. The server records the session, and the last test replays it."""
 
 import asyncio
 import base64
+import contextlib
 import hashlib
 import io
 import json
 import math
 import os
 import queue
+import socket
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from types import SimpleNamespace
@@ -31,14 +34,15 @@ CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver"
 W, H = 128, 96
 
 
-def _serve(session, record):
-    """A :class:`Server` of ``session`` in a thread of its own; returns it, its
-    URL and a function that stops it (its record then complete)."""
+def _serve(session, record, **options):
+    """A :class:`Server` of ``session`` (``options``: its host, token) in a
+    thread of its own; returns it, its URL and a function that stops it
+    (its record, where one is made, then complete)."""
     ready, stop = queue.Queue(), threading.Event()
 
     async def main():
-        server = Server(session)
-        url = await server.start(lambda: Recorder(record, session.spec))
+        server = Server(session, **options)
+        url = await server.start(record and (lambda: Recorder(record, session.spec)))
         ready.put((server, url))
         while not stop.is_set():
             await asyncio.sleep(0.05)
@@ -91,6 +95,30 @@ def browser(viewer, tmp_path_factory):
     _until(lambda: driver.execute_script("return window.jaxadapt.frames") > 3, "frames")
     yield driver
     driver.quit()
+
+
+@pytest.fixture(scope="module")
+def remote(browser):
+    """A second server, as ``--host 0.0.0.0`` serves it (a token in its URLs),
+    of pattanaik2000, whose page switches no effects."""
+    session = Session({"scene": "patches", "size": [64, 36], "operator": "pattanaik2000"})
+    server, url, close = _serve(session, None, host="0.0.0.0", token="s3cret-t0ken")
+    yield SimpleNamespace(server=server, url=url)
+    close()
+
+
+@contextlib.contextmanager
+def _new_window(browser, url):
+    """Open ``url`` in a second window of ``browser`` (the first one's page
+    stays open and visible) until the block ends."""
+    first = browser.current_window_handle
+    browser.switch_to.new_window("window")
+    try:
+        browser.get(url)
+        yield
+    finally:
+        browser.close()
+        browser.switch_to.window(first)
 
 
 def _until(condition, what, timeout=20.0):
@@ -164,6 +192,26 @@ def _afterimage_centre(pixels):
         return None
     y, x = np.nonzero(bright)
     return float(x.mean()), float(y.mean())
+
+
+def test_a_page_off_loopback_works_with_its_token(remote, browser):
+    """Bound to every address, the server prints URLs of the machine (no
+    0.0.0.0), each with the token; the page opened from one of them gets
+    its script, its socket and frames, while a request without the token
+    is refused."""
+    urls = remote.server.urls()
+    assert all("0.0.0.0" not in u and u.endswith("/?token=s3cret-t0ken") for u in urls)
+    assert urls[0].startswith(f"http://{socket.gethostname()}:") and "127.0.0.1" in urls[-1]
+    address = next((u for u in urls[1:-1]), urls[-1])  # an address other machines can use
+    with _new_window(browser, address):
+        _until(lambda: browser.execute_script("return window.jaxadapt.frames") > 3, "frames")
+        assert "frames/s" in browser.find_element("id", "overlay").text
+        assert _canvas(browser).max() > 100  # the patches drawn
+    bare = address.split("?")[0]
+    with pytest.raises(urllib.error.HTTPError, match="403"):
+        urllib.request.urlopen(bare + "state", timeout=5)
+    with urllib.request.urlopen(bare + "viewer.js", timeout=5) as response:  # no secret in it
+        assert b"WebSocket" in response.read()
 
 
 def test_afterimage_of_a_flash_moves_with_the_gaze(viewer, browser):

@@ -387,6 +387,8 @@ def test_guards_token_host_origin_paths_and_clients(monkeypatch):
     assert statuses == {
         "no token": 403,
         "token": 200,
+        "script": 200,
+        "script, foreign origin": 403,
         "state": 200,
         "traversal": 404,
         "foreign host": 403,
@@ -405,6 +407,8 @@ async def _probe(session):
                 ("no token", "", {}),
                 ("token", "?token=s3cret", {}),
                 ("state", "state?token=s3cret", {}),
+                ("script", "viewer.js", {}),  # the page's, loaded without the token
+                ("script, foreign origin", "viewer.js", {"Origin": "http://evil.example"}),
                 ("traversal", "..%2f..%2fetc%2fpasswd?token=s3cret", {}),
                 ("foreign origin", "?token=s3cret", {"Origin": "http://evil.example"}),
             ):
@@ -426,6 +430,20 @@ async def _probe(session):
     finally:
         await plain.close()
     return statuses
+
+
+def test_bound_to_every_address_the_urls_are_the_machine_s():
+    """0.0.0.0 is no address a browser can open: the URLs are the machine's
+    name, then its addresses, loopback's last, each with the token."""
+    server = Server(Session(SMALL), host="0.0.0.0", token="s3cret")
+    server.port = 8765
+    urls = server.urls()
+    hosts = [u.removeprefix("http://").removesuffix(":8765/?token=s3cret") for u in urls]
+    assert hosts[0] == socket.gethostname() and hosts[-1] == "127.0.0.1"
+    assert "0.0.0.0" not in hosts and len(set(hosts)) == len(hosts)
+    assert [u.removeprefix("http://") for u in Server(Session(SMALL), host="::1").urls()] == [
+        "[::1]:0/"
+    ]
 
 
 def _default_signals():

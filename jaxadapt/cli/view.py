@@ -81,7 +81,8 @@ def _server_options():
     """The options of the server and the record."""
     return (
         (("--host",), dict(default="127.0.0.1", help="address to listen on (default: "
-            "127.0.0.1, this machine only); any other requires the token printed at start")),
+            "127.0.0.1, this machine only; 0.0.0.0: every IPv4 address); any other requires "
+            "the token in the URLs printed at start")),
         (("--port",), dict(type=_port, default=8765, help="port (default: 8765; 0: any free "
             "one)")),
         (("--no-browser",), dict(action="store_true", help="do not open the page in a browser")),
@@ -200,9 +201,12 @@ async def _serve(session, args, token, record, console):
     finally:
         if server.sim.ident is None:  # not started: the handlers go with the error
             restore()
+    urls = server.urls()  # (bound to every address: the machine's names, loopback's last)
     _report(f"jaxadapt view: serving {url} (Ctrl-C stops)")
+    if len(urls) > 1:
+        _report(f"  also at {', '.join(urls[1:])}")
     if not args.no_browser:
-        loop.run_in_executor(None, webbrowser.open, url)
+        loop.run_in_executor(None, webbrowser.open, urls[-1])
     try:
         while not stop.is_set() and server.sim.is_alive():
             try:

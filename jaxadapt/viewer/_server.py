@@ -10,12 +10,14 @@ than the frames in flight.
 
 import asyncio
 import collections
+import contextlib
 import hmac
 import importlib.resources
 import io
 import ipaddress
 import json
 import math
+import socket
 import struct
 import threading
 import time
@@ -34,6 +36,9 @@ MAX_FPS = 60.0
 JPEG_QUALITY = 85
 #: The page and its script, served from the package (never from a request's path).
 ASSETS = {"/": ("index.html", "text/html"), "/viewer.js": ("viewer.js", "text/javascript")}
+#: Paths served without the token: the page's script, the same for everyone
+#: and holding no secret (the page loads it by a plain ``<script src>``).
+PUBLIC = frozenset({"/viewer.js"})
 
 
 def encode_jpeg(pixels, quality=JPEG_QUALITY):
@@ -250,9 +255,16 @@ class Server:
             await self.runner.cleanup()
             raise
         self.sim.start()
-        host = f"[{self.host}]" if ":" in self.host else self.host
+        return self.urls()[0]
+
+    def urls(self):
+        """The page's URLs, the first to print: bound to a wildcard address
+        (``0.0.0.0``, ``::``, ``""``), the machine's name and its addresses
+        (a wildcard address is no place a browser can go), then loopback's;
+        otherwise the one address bound."""
         query = f"?token={self.token}" if self.token else ""
-        return f"http://{host}:{self.port}/{query}"
+        hosts = machine_names(self.host) if is_wildcard(self.host) else [self.host]
+        return [f"http://{_bracketed(h)}:{self.port}/{query}" for h in hosts]
 
     async def close(self):
         """Close the sockets, stop the simulation (its record completed) and unbind."""
@@ -270,7 +282,8 @@ class Server:
         from aiohttp import web
 
         given = request.query.get("token", "").encode()
-        if self.token and not hmac.compare_digest(given, self.token.encode()):
+        public = request.path in PUBLIC
+        if self.token and not public and not hmac.compare_digest(given, self.token.encode()):
             return web.Response(status=403, text="jaxadapt view: missing or wrong token\n")
         if not self.token and request.host not in self._hosts():
             return web.Response(status=403, text=f"jaxadapt view: unexpected Host {request.host}\n")
@@ -458,6 +471,44 @@ def _json(text):
 def _number(value):
     """``value`` for JSON: None for NaN (no frame yet)."""
     return None if math.isnan(value) else value
+
+
+def _bracketed(host):
+    return f"[{host}]" if ":" in host else host
+
+
+def is_wildcard(host):
+    """Whether ``host`` means every address of the machine (``0.0.0.0``, ``::``, ``""``)."""
+    if host in ("", None):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_unspecified
+    except ValueError:
+        return False
+
+
+def machine_names(wildcard="0.0.0.0"):
+    """Names a browser can reach a server bound to ``wildcard`` by: the
+    machine's host name, its addresses (those of its name and that of its
+    default route; IPv4 for ``0.0.0.0``, IPv6 for ``::``, both for ``""``),
+    then loopback's address."""
+    families = {"0.0.0.0": [socket.AF_INET], "::": [socket.AF_INET6]}.get(
+        str(ipaddress.ip_address(wildcard)) if wildcard else "",
+        [socket.AF_INET, socket.AF_INET6],
+    )
+    names = [socket.gethostname()]
+    for family in families:
+        found = []
+        try:
+            found += [a[4][0] for a in socket.getaddrinfo(names[0], None, family)]
+        except OSError:  # a name that does not resolve
+            pass
+        with contextlib.suppress(OSError), socket.socket(family, socket.SOCK_DGRAM) as probe:
+            probe.connect(("192.0.2.1" if family == socket.AF_INET else "2001:db8::1", 9))
+            found.append(probe.getsockname()[0])  # (a datagram socket sends nothing on connect)
+        names += [a for a in found if not ipaddress.ip_address(a.split("%")[0]).is_loopback]
+    names += ["127.0.0.1" if socket.AF_INET in families else "::1"]
+    return list(dict.fromkeys(names))
 
 
 def is_loopback(host):
