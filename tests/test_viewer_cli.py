@@ -432,6 +432,48 @@ async def _probe(session):
     return statuses
 
 
+def test_a_request_without_host_is_a_400_and_port_80_takes_a_bare_host(caplog):
+    """A request with no Host (curl -H 'Host:') is a 400 and no traceback on
+    the terminal; an empty Host is refused naming what was expected; on port
+    80 a browser's ``Host: localhost`` (no port) and its Origin are the
+    server's own."""
+    replies = asyncio.run(_hosts(Session(SMALL)))
+    assert replies["no Host"].split()[1] == b"400" and b"Host" in replies["no Host"]
+    assert not [r for r in caplog.records if r.exc_info], [r.getMessage() for r in caplog.records]
+    empty = replies["empty Host"]
+    assert empty.startswith(b"HTTP/1.1 403") and b"Host: expected 127.0.0.1:" in empty
+    assert empty.endswith(b"got ''\n")
+    assert replies["localhost, port 80"] == replies["origin, port 80"] == 200
+    assert replies["localhost:8765, port 80"] == replies["evil.example, port 80"] == 403
+
+
+async def _hosts(session):
+    server = Server(session)
+    await server.start()
+    port, replies = server.port, {}
+    try:
+        for case, host in (("no Host", None), ("empty Host", "")):
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            line = "" if host is None else f"Host: {host}\r\n"
+            writer.write(f"GET /state HTTP/1.1\r\n{line}Connection: close\r\n\r\n".encode())
+            replies[case] = await asyncio.wait_for(reader.read(), 10)
+            writer.close()
+        server.port = 80  # (as bound to port 80, which a test cannot bind)
+        async with aiohttp.ClientSession() as http:
+            for case, headers in (
+                ("localhost, port 80", {"Host": "localhost"}),
+                ("origin, port 80", {"Host": "localhost", "Origin": "http://localhost"}),
+                ("localhost:8765, port 80", {"Host": "localhost:8765"}),
+                ("evil.example, port 80", {"Host": "evil.example"}),
+            ):
+                async with http.get(f"http://127.0.0.1:{port}/state", headers=headers) as r:
+                    replies[case] = r.status
+    finally:
+        server.port = port
+        await server.close()
+    return replies
+
+
 def test_bound_to_every_address_the_urls_are_the_machine_s():
     """0.0.0.0 is no address a browser can open: the URLs are the machine's
     name, then its addresses, loopback's last, each with the token."""

@@ -16,6 +16,7 @@ import importlib.resources
 import io
 import ipaddress
 import json
+import logging
 import math
 import socket
 import struct
@@ -243,7 +244,9 @@ class Server:
         from aiohttp import web
 
         self.loop = asyncio.get_running_loop()
-        self.runner = web.AppRunner(self.app(), access_log=None, handle_signals=False)
+        self.runner = web.AppRunner(
+            self.app(), access_log=None, handle_signals=False, logger=_http_logger()
+        )
         await self.runner.setup()
         try:
             await web.TCPSite(self.runner, self.host, self.port).start()
@@ -285,18 +288,34 @@ class Server:
         public = request.path in PUBLIC
         if self.token and not public and not hmac.compare_digest(given, self.token.encode()):
             return web.Response(status=403, text="jaxadapt view: missing or wrong token\n")
-        if not self.token and request.host not in self._hosts():
-            return web.Response(status=403, text=f"jaxadapt view: unexpected Host {request.host}\n")
+        host = request.headers.get("Host", "")
+        if not self.token and not self._is_own(host):
+            expected = " or ".join(f"{n}:{self.port}" for n in self._names())
+            return web.Response(
+                status=403,
+                text=f"jaxadapt view: Host: expected {expected}, got {host!r}\n",
+            )
         origin = request.headers.get("Origin")
-        if origin is not None and origin not in (f"http://{h}" for h in self._hosts(request)):
-            return web.Response(status=403, text=f"jaxadapt view: refused origin {origin}\n")
+        if origin is not None and not (
+            origin.startswith("http://") and self._is_own(origin[7:], host)
+        ):
+            return web.Response(status=403, text=f"jaxadapt view: refused Origin {origin!r}\n")
         return await handler(request)
 
-    def _hosts(self, request=None):
-        names = {"127.0.0.1", "localhost", "[::1]", self.host}
-        if self.token and request is not None:  # any name of the machine, the token guards
-            names.add(request.host.rsplit(":", 1)[0])
-        return {f"{n}:{self.port}" for n in names}
+    def _names(self):
+        """The names of this server without a token: loopback's and its address."""
+        return list(dict.fromkeys(["127.0.0.1", "localhost", "[::1]", _bracketed(self.host)]))
+
+    def _is_own(self, authority, host=None):
+        """Whether ``authority`` (a Host header, or an Origin's ``host[:port]``)
+        names this server: one of :meth:`_names` (with a token, also the
+        request's ``host``: any name of the machine, the token guards) and
+        its port, which a browser leaves out for port 80."""
+        names = self._names()
+        if self.token and host:
+            names.append(_split_authority(host)[0])
+        name, port = _split_authority(authority)
+        return name is not None and name in names and port == self.port
 
     async def _asset(self, request):
         from aiohttp import web
@@ -471,6 +490,36 @@ def _json(text):
 def _number(value):
     """``value`` for JSON: None for NaN (no frame yet)."""
     return None if math.isnan(value) else value
+
+
+def _split_authority(text):
+    """``(name, port)`` of ``host[:port]`` (port 80, HTTP's, when left out;
+    names lower case); ``(None, None)`` where it is no such thing."""
+    name, colon, port = text.rpartition(":")
+    if not colon or name.startswith("[") and not name.endswith("]"):  # no port; IPv6 [::1]
+        name, port = text, "80"
+    if not name or not port.isdigit() or not port.isascii():
+        return None, None
+    return name.lower(), int(port)
+
+
+class _ClientErrors(logging.Filter):
+    """Drops aiohttp's report of a request it could not parse (no Host, a
+    bad header line): the client gets a 400 saying so, and the terminal
+    no traceback."""
+
+    def filter(self, record):
+        from aiohttp.http_exceptions import HttpProcessingError
+
+        error = record.exc_info[1] if record.exc_info else None
+        return not isinstance(error, HttpProcessingError)
+
+
+def _http_logger():
+    logger = logging.getLogger("jaxadapt.viewer.http")
+    if not logger.filters:
+        logger.addFilter(_ClientErrors())
+    return logger
 
 
 def _bracketed(host):
