@@ -181,6 +181,26 @@ def test_gaze_in_state_follows_the_pointer(viewer, browser):
         assert frame["size"] == [W, H]
 
 
+def test_the_pointer_on_the_canvas_s_edge_pixels_is_on_the_frame(viewer, browser):
+    """The canvas's outermost CSS pixels map to the frame's edge pixels, with
+    no warning: the page maps its whole area into the frame."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    canvas = browser.find_element("id", "view")
+    w, h = canvas.size["width"], canvas.size["height"]
+    errors = len(browser.execute_script("return window.jaxadapt.errors"))
+    # (offsets from the pixel at the centre, at (w // 2, h // 2))
+    for offset, corner in (
+        (((w - 1) // 2, (h - 1) // 2), (W - 1, H - 1)),
+        ((-(w // 2), -(h // 2)), (0, 0)),
+    ):
+        ActionChains(browser, duration=0).move_to_element_with_offset(canvas, *offset).perform()
+        _until(lambda c=corner: _near(_state(viewer)["gaze"], c, 0.01), f"gaze at {corner}")
+    time.sleep(0.2)  # (a warning would be on its way)
+    assert len(browser.execute_script("return window.jaxadapt.errors")) == errors
+    assert browser.find_element("id", "message").text == ""
+
+
 def _near(gaze, point, tolerance):
     return gaze[0] is not None and math.dist(gaze, point) <= tolerance
 

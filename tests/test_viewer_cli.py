@@ -474,6 +474,60 @@ async def _hosts(session):
     return replies
 
 
+def test_a_tracker_s_bad_lines_get_errors_and_its_warnings_a_rate(monkeypatch):
+    """On /gaze, every bad line gets a JSON error and the socket stays (one
+    nested too deeply to parse, an id that is no id); a flood of samples
+    off the frame gets one warning per interval, then one saying how many
+    went unsaid, and a ``clear`` once the samples are on the frame again;
+    the frame reaches the pixels' outer edges (-0.5 to W - 0.5)."""
+    monkeypatch.setattr(_server, "WARNING_INTERVAL", 0.3)
+    replies = asyncio.run(_track(Session(SMALL)))
+    nested, bad_id, first, flood_over, later, clear, edge = replies
+    assert nested["type"] == "error" and "nested too deeply to read" in nested["message"]
+    assert bad_id["type"] == "error" and bad_id["message"].startswith("id: expected a number")
+    assert first["type"] == "warning" and "off the 32x24 frame (-0.5 to 31.5" in first["message"]
+    assert flood_over == []  # the 1999 after the first, within the interval
+    assert later["type"] == "warning" and "(1999 more left unsaid in the last" in later["message"]
+    assert clear == {"type": "clear", "message": "x, y: on the frame again"}
+    assert edge == {"gaze": [31.0, 0.0], "messages": []}
+
+
+async def _track(session):
+    server = Server(session)
+    url = await server.start()
+    replies = []
+
+    async def received(ws, wait=0.1):
+        found = []
+        with contextlib.suppress(asyncio.TimeoutError):
+            while True:
+                found.append(await asyncio.wait_for(ws.receive_json(), wait))
+        return found
+
+    try:
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(url.replace("http", "ws") + "gaze") as ws:
+                for line in ("[" * 50000, '{"x": 1, "y": 2, "id": [[1]]}'):
+                    await ws.send_str(line)
+                    replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                off = '{"t": 0, "x": 40, "y": 3}\n'
+                await ws.send_str(off * 2000)
+                replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                replies.append(await received(ws))
+                await asyncio.sleep(0.3)
+                await ws.send_str(off)
+                replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                await ws.send_str('{"t": 1, "x": 5, "y": 5}')
+                replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                await ws.send_str('{"t": 2, "x": 31.5, "y": -0.5}')
+                messages = await received(ws, 0.3)
+                async with http.get(url + "state") as response:
+                    replies.append({"gaze": (await response.json())["gaze"], "messages": messages})
+    finally:
+        await server.close()
+    return replies
+
+
 def test_bound_to_every_address_the_urls_are_the_machine_s():
     """0.0.0.0 is no address a browser can open: the URLs are the machine's
     name, then its addresses, loopback's last, each with the token."""

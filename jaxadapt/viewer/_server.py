@@ -33,6 +33,8 @@ MAX_CLIENTS = 8
 MAX_MESSAGE = 2**16
 #: Highest frame rate computed, frames/s.
 MAX_FPS = 60.0
+#: Shortest time between two warnings to one client, s (those between are counted).
+WARNING_INTERVAL = 1.0
 #: JPEG quality of the frames sent (Pillow's scale, 1-95).
 JPEG_QUALITY = 85
 #: The page and its script, served from the package (never from a request's path).
@@ -61,16 +63,26 @@ def frame_message(header, jpeg):
 def parse_gaze(sample, shape):
     """The gaze point ``(x, y)`` of a sample ``{"x": px, "y": px}`` on frames
     of ``shape (H, W)``, and a warning or None: ``x`` and ``y`` both null
-    (or NaN) are a blink, ``(nan, nan)``; a point off the frame is clipped to
-    its edge (the operators' reading), with a warning. ValueError for
-    anything else, naming what was expected."""
+    (or NaN) are a blink, ``(nan, nan)``. Pixel centres are whole numbers,
+    so the frame spans -0.5 to ``W - 0.5``: a point on it is clipped to the
+    nearest pixel centre (the operators' reading) silently, one beyond it
+    with a warning. ValueError for anything else, naming what was expected."""
     if not isinstance(sample, dict) or not {"x", "y"} <= set(sample):
-        raise ValueError(f'expected an object {{"t": s, "x": px, "y": px}}, got {sample!r:.80}')
+        raise ValueError(f'expected an object {{"t": s, "x": px, "y": px}}, got {_short(sample)}')
+    gaze_id = sample.get("id")
+    if not (gaze_id is None or _is_number(gaze_id) or isinstance(gaze_id, str)) or (
+        isinstance(gaze_id, str) and len(gaze_id) > 64
+    ):
+        raise ValueError(
+            f"id: expected a number or a string of at most 64 characters, got {_short(gaze_id)}"
+        )
     x, y = sample["x"], sample["y"]
     if x is None and y is None:
         return (math.nan, math.nan), None
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (x, y)):
-        raise ValueError(f"x, y: expected numbers (pixels) or both null, got {x!r:.30}, {y!r:.30}")
+    if not (_is_number(x) and _is_number(y)):
+        raise ValueError(
+            f"x, y: expected numbers (pixels) or both null, got {_short(x, 30)}, {_short(y, 30)}"
+        )
     try:
         x, y = float(x), float(y)
     except OverflowError:  # an integer beyond float64
@@ -81,12 +93,55 @@ def parse_gaze(sample, shape):
         raise ValueError(f"x, y: expected finite pixels or both NaN (a blink), got {x}, {y}")
     H, W = shape
     clipped = (min(max(x, 0.0), W - 1.0), min(max(y, 0.0), H - 1.0))
-    if clipped != (x, y):
+    if not (-0.5 <= x <= W - 0.5 and -0.5 <= y <= H - 0.5):
         return clipped, (
-            f"x, y: ({x:g}, {y:g}) is off the {W}x{H} frame; taken as its nearest point "
-            f"({clipped[0]:g}, {clipped[1]:g})"
+            f"x, y: ({x:g}, {y:g}) is off the {W}x{H} frame (-0.5 to {W - 0.5:g}, "
+            f"-0.5 to {H - 0.5:g}); taken as its nearest point ({clipped[0]:g}, {clipped[1]:g})"
         )
-    return (x, y), None
+    return clipped, None
+
+
+def _is_number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _short(value, length=80):
+    """``repr(value)``, cut to ``length`` characters (a client's value may be
+    long, or nested too deeply to print)."""
+    try:
+        text = repr(value)
+    except RecursionError:
+        text = f"a {type(value).__name__} nested too deeply"
+    return text if len(text) <= length else text[: length - 3] + "..."
+
+
+class Warnings:
+    """The warnings of one client's samples, at most one each
+    :data:`WARNING_INTERVAL` (those between counted, and said with the
+    next), and a ``clear`` message once its samples are good again: a
+    flood of bad samples is not answered sample by sample."""
+
+    def __init__(self, ws):
+        self.ws, self.sent, self.suppressed, self.active = ws, -math.inf, 0, False
+
+    async def warn(self, message):
+        now = time.monotonic()
+        self.active = True
+        if now - self.sent < WARNING_INTERVAL:
+            self.suppressed += 1
+            return
+        if self.suppressed:
+            message += f" ({self.suppressed} more left unsaid in the last {now - self.sent:.1f} s)"
+        self.sent, self.suppressed = now, 0
+        await _error(self.ws, message, "warning")
+
+    async def clear(self, message):
+        """The samples are good again: say so, once, where a warning was due."""
+        if self.active:
+            if self.suppressed:
+                message += f" ({self.suppressed} more warnings left unsaid before)"
+            self.active, self.suppressed = False, 0
+            await _error(self.ws, message, "clear")
 
 
 class Simulation(threading.Thread):
@@ -195,10 +250,10 @@ class Simulation(threading.Thread):
 
 
 class Client:
-    """A page connected to ``/ws``: its socket and frames in flight."""
+    """A page connected to ``/ws``: its socket, frames in flight and warnings."""
 
     def __init__(self, ws):
-        self.ws, self.unacked = ws, 0
+        self.ws, self.unacked, self.warnings = ws, 0, Warnings(ws)
 
 
 class Server:
@@ -393,8 +448,7 @@ class Server:
                     return
                 gaze, warning = parse_gaze(message, self.session.shape)
                 self.sim.look(gaze, message.get("id"))
-                if warning:
-                    await _error(client.ws, warning, "warning")
+                await _warn(client.warnings, warning)
             elif kind == "pause":
                 self.sim.command("pause", bool(message.get("paused", True)))
                 self.sim.want()
@@ -413,8 +467,8 @@ class Server:
                     "expected a message of type ack, gaze, pause, reset or effect, "
                     f"got {text!r:.80}"
                 )
-        except ValueError as error:  # json.JSONDecodeError is one
-            await _error(client.ws, str(error))
+        except Exception as error:  # a bad message (ValueError; any other: said as such)
+            await _error(client.ws, _reason(error))
 
     async def _gaze_socket(self, request):
         """``/gaze``: JSON lines ``{"t": s, "x": px, "y": px}`` from a tracker."""
@@ -423,30 +477,31 @@ class Server:
         ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_MESSAGE, heartbeat=20)
         await ws.prepare(request)
         self.trackers.add(ws)
+        warnings = Warnings(ws)
         try:
             async for msg in ws:
                 if msg.type != WSMsgType.TEXT:
                     await _error(ws, "expected JSON lines of text, got binary data")
                     continue
                 for line in filter(str.strip, msg.data.splitlines()):
-                    await self._tracker_line(ws, line)
+                    await self._tracker_line(ws, warnings, line)
         finally:
             self.trackers.discard(ws)
         return ws
 
-    async def _tracker_line(self, ws, line):
+    async def _tracker_line(self, ws, warnings, line):
+        """Take one line of a tracker: its gaze, or an error naming the line."""
         try:
             sample = _json(line)
             gaze, warning = parse_gaze(sample, self.session.shape)
             t = sample.get("t")
-            if t is not None and not (isinstance(t, (int, float)) and math.isfinite(t)):
-                raise ValueError(f"t: expected a time in seconds, got {t!r:.30}")
-        except ValueError as error:
-            await _error(ws, f"{error} (line {line!r:.80})")
+            if t is not None and not (_is_number(t) and math.isfinite(t)):
+                raise ValueError(f"t: expected a time in seconds, got {_short(t, 30)}")
+        except Exception as error:  # a bad line (ValueError; any other: said as such)
+            await _error(ws, f"{_reason(error)} (line {_short(line)})")
             return
         self.sim.look(gaze, sample.get("id"))
-        if warning:
-            await _error(ws, warning, "warning")
+        await _warn(warnings, warning)
 
     # -- frames -----------------------------------------------------------
 
@@ -479,12 +534,32 @@ async def _error(ws, message, kind="error"):
             pass
 
 
+async def _warn(warnings, warning):
+    """Pass a sample's ``warning`` (None: the sample was on the frame) to ``warnings``."""
+    if warning:
+        await warnings.warn(warning)
+    else:
+        await warnings.clear("x, y: on the frame again")
+
+
+def _reason(error):
+    """The message of a client's bad message or line: a ValueError's own
+    (it names the field), anything else's with its kind."""
+    if isinstance(error, ValueError):
+        return str(error)
+    return f"could not read it: {type(error).__name__}: {_short(str(error))}"
+
+
 def _json(text):
     """The JSON value of ``text``; a one-line ValueError where it is not JSON."""
     try:
         return json.loads(text)
     except json.JSONDecodeError as error:
-        raise ValueError(f"expected a JSON object, got {text!r:.80} ({error})") from None
+        raise ValueError(f"expected a JSON object, got {_short(text)} ({error})") from None
+    except RecursionError:
+        raise ValueError(
+            f"expected a JSON object, got {_short(text, 30)}, nested too deeply to read"
+        ) from None
 
 
 def _number(value):

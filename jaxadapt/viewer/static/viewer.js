@@ -83,16 +83,25 @@
     } else if (m.type === "error" || m.type === "warning") {
       state.errors.push(m.message);
       message.textContent = m.type + ": " + m.message;
+    } else if (m.type === "clear") { // the warning shown no longer applies
+      if (message.textContent.startsWith("warning: ")) message.textContent = "";
     }
   });
   socket.addEventListener("close", function (event) {
     overlay.textContent = "disconnected" + (event.reason ? ": " + event.reason : "");
   });
 
+  // The canvas's area in frame pixels, whose centres are whole numbers: from
+  // -0.5 at its left or top edge to W - 0.5 at its right or bottom edge.
+  function framePixel(client, start, extent, pixels) {
+    const x = (client - start) / extent * pixels - 0.5;
+    return Math.min(Math.max(x, -0.5), pixels - 0.5);
+  }
+
   canvas.addEventListener("pointermove", function (event) {
     const rect = canvas.getBoundingClientRect();
-    const x = (event.clientX - rect.left) / rect.width * canvas.width - 0.5;
-    const y = (event.clientY - rect.top) / rect.height * canvas.height - 0.5;
+    const x = framePixel(event.clientX, rect.left, rect.width, canvas.width);
+    const y = framePixel(event.clientY, rect.top, rect.height, canvas.height);
     state.gazeId += 1;
     send({ type: "gaze", x: x, y: y, id: state.gazeId, t: performance.now() / 1000 });
   });
