@@ -367,6 +367,42 @@ def test_effects_pause_and_a_page_that_falls_behind(viewer, browser):
     browser.find_element("id", "effect-dithering").click()
 
 
+def test_pages_agree_on_pause_effects_and_resets(viewer, browser):
+    """A page opened while the server is paused shows the last frame and
+    says it is paused, and one press of space resumes; an effect switched
+    or a reset on one page is told to every page."""
+    from selenium.webdriver.common.keys import Keys
+
+    def script(expression):
+        return browser.execute_script("return " + expression)
+
+    browser.find_element("tag name", "body").send_keys(Keys.SPACE)
+    _until(lambda: _state(viewer)["paused"], "paused")
+    _until(lambda: script("window.jaxadapt.header.frame") == _state(viewer)["frame"] - 1, "drawn")
+    last, pixels, resets = (
+        script("window.jaxadapt.header"),
+        _canvas(browser),
+        script("window.jaxadapt.resets"),
+    )
+    with _new_window(browser, viewer.url):
+        _until(lambda: script("window.jaxadapt.frames") == 1, "the last frame")
+        assert script("window.jaxadapt.header.digest") == last["digest"]
+        np.testing.assert_array_equal(_canvas(browser), pixels)
+        assert browser.find_element("id", "pause").text == "resume"
+        assert "(paused)" in browser.find_element("id", "overlay").text
+        browser.find_element("tag name", "body").send_keys(Keys.SPACE)  # once
+        _until(lambda: not _state(viewer)["paused"], "resumed")
+        browser.find_element("id", "effect-acuity").click()
+        _until(lambda: "acuity" not in _state(viewer)["effects"], "acuity off")
+        browser.find_element("id", "reset").click()
+        _until(lambda: _state(viewer)["resets"] == resets + 1, "a reset")
+    _until(lambda: browser.find_element("id", "pause").text == "pause", "told: resumed")
+    _until(lambda: not browser.find_element("id", "effect-acuity").is_selected(), "told: acuity")
+    assert script("window.jaxadapt.resets") == resets + 1
+    browser.find_element("id", "effect-acuity").click()
+    _until(lambda: "acuity" in _state(viewer)["effects"], "acuity on again")
+
+
 def test_recorded_session_replays_to_the_frames_shown(viewer, browser, tmp_path):
     """The frames the browser drew (their digests) are those that
     :func:`replay`, and ``jaxadapt render --replay`` in its PNGs, make

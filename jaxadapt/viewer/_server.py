@@ -273,6 +273,9 @@ class Server:
     def __init__(self, session, host="127.0.0.1", port=0, token=None):
         self.session, self.host, self.port, self.token = session, host, port, token
         self.clients, self.trackers = set(), set()
+        # What every page shows, kept here (the simulation applies the
+        # commands between frames, and none while paused)
+        self.effects, self.resets, self.last_frame = set(session.effects), 0, None
         self.sim = Simulation(session, self._publish_threadsafe)
         self.loop = self.runner = None
         self.assets = {
@@ -383,7 +386,7 @@ class Server:
 
         sim = self.sim
         with sim.cond:
-            gaze, paused = sim.gaze, sim.paused
+            gaze = sim.gaze
         H, W = self.session.shape
         return web.json_response(
             {
@@ -393,14 +396,32 @@ class Server:
                 "adaptation": _number(self.session.adaptation()),
                 "size": [W, H],
                 "t": self.session.t,
-                "paused": paused,
                 "operator": self.session.operator,
-                "effects": sorted(self.session.effects),
                 "available_effects": list(self.session.available_effects),
                 "clients": len(self.clients),
-                "trackers": len(self.trackers),
+                **self.view_state(),
             }
         )
+
+    def view_state(self):
+        """What every page shows alike: ``paused``, ``effects`` (those on,
+        or switched on for the next frame), ``resets`` (how many so far) and
+        ``trackers`` (connected to ``/gaze``: the pointers are then ignored)."""
+        with self.sim.cond:
+            paused = self.sim.paused
+        return {
+            "paused": paused,
+            "effects": sorted(self.effects),
+            "resets": self.resets,
+            "trackers": len(self.trackers),
+        }
+
+    async def _tell_pages(self, change):
+        """Send every page the view's state after ``change`` (pause, effect,
+        reset, trackers), so that all pages agree."""
+        message = {"type": "state", "change": change, **self.view_state()}
+        for client in list(self.clients):
+            await _tell(client.ws, message)
 
     async def _page_socket(self, request):
         from aiohttp import WSMsgType, web
@@ -419,10 +440,13 @@ class Server:
                 "type": "hello",
                 "size": [W, H],
                 "operator": self.session.operator,
-                "effects": sorted(self.session.effects),
                 "available_effects": list(self.session.available_effects),
+                **self.view_state(),
             }
         )
+        if self.last_frame is not None:  # (paused, the page has no other)
+            client.unacked += 1
+            await _send(ws, self.last_frame)
         self.sim.want()
         try:
             async for msg in ws:
@@ -450,18 +474,23 @@ class Server:
                 self.sim.look(gaze, message.get("id"))
                 await _warn(client.warnings, warning)
             elif kind == "pause":
-                self.sim.command("pause", bool(message.get("paused", True)))
+                self.sim.command("pause", _flag(message, "paused", True))
                 self.sim.want()
+                await self._tell_pages("pause")
             elif kind == "reset":
                 self.sim.command("reset")
+                self.resets += 1
+                await self._tell_pages("reset")
             elif kind == "effect":
-                name, on = message.get("name"), bool(message.get("on"))
+                name, on = message.get("name"), _flag(message, "on")
                 if name not in self.session.available_effects:
                     raise ValueError(
                         f"effect: expected one of {list(self.session.available_effects)}, "
-                        f"got {name!r:.40}"
+                        f"got {_short(name, 40)}"
                     )
                 self.sim.command("effect", name, on)
+                (self.effects.add if on else self.effects.discard)(name)
+                await self._tell_pages("effect")
             else:
                 raise ValueError(
                     "expected a message of type ack, gaze, pause, reset or effect, "
@@ -477,6 +506,7 @@ class Server:
         ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_MESSAGE, heartbeat=20)
         await ws.prepare(request)
         self.trackers.add(ws)
+        await self._tell_pages("trackers")
         warnings = Warnings(ws)
         try:
             async for msg in ws:
@@ -487,6 +517,7 @@ class Server:
                     await self._tracker_line(ws, warnings, line)
         finally:
             self.trackers.discard(ws)
+            await self._tell_pages("trackers")
         return ws
 
     async def _tracker_line(self, ws, warnings, line):
@@ -509,7 +540,9 @@ class Server:
         self.loop.call_soon_threadsafe(self._publish, frame_message(header, jpeg))
 
     def _publish(self, message):
-        """Send a frame to every page with room for it; the others skip it."""
+        """Send a frame to every page with room for it; the others skip it.
+        The last is kept for a page that opens while the simulation is paused."""
+        self.last_frame = message
         for client in list(self.clients):
             if client.unacked < WINDOW and not client.ws.closed:
                 client.unacked += 1
@@ -525,13 +558,26 @@ async def _send(ws, message):
         pass
 
 
-async def _error(ws, message, kind="error"):
-    """Tell a client what was wrong with its message (the socket stays open)."""
+async def _tell(ws, message):
+    """Send ``message`` (JSON) to a client, unless it has gone."""
     if not ws.closed:
         try:
-            await ws.send_json({"type": kind, "message": message})
+            await ws.send_json(message)
         except (ConnectionError, RuntimeError):
             pass
+
+
+async def _error(ws, message, kind="error"):
+    """Tell a client what was wrong with its message (the socket stays open)."""
+    await _tell(ws, {"type": kind, "message": message})
+
+
+def _flag(message, name, default=None):
+    """``message[name]``, true or false (``default`` where left out, if any)."""
+    value = message.get(name, default)
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}: expected true or false, got {_short(value, 30)}")
+    return value
 
 
 async def _warn(warnings, warning):

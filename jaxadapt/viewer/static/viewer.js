@@ -5,7 +5,10 @@
   const context = canvas.getContext("2d");
   const overlay = document.getElementById("overlay");
   const message = document.getElementById("message");
-  const state = { frames: 0, header: null, size: [16, 9], paused: false, gazeId: 0, errors: [], seen: [] };
+  const state = {
+    frames: 0, header: null, size: [16, 9], paused: false, effects: [], resets: 0, trackers: 0,
+    gazeId: 0, errors: [], seen: [],
+  };
   window.jaxadapt = state; // for tests and the curious
   const url = new URL("ws", location.href);
   url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
@@ -35,7 +38,7 @@
   }
   addEventListener("resize", fit);
 
-  function effectBoxes(available, on) {
+  function effectBoxes(available) {
     const box = document.getElementById("effects");
     box.textContent = "";
     available.forEach(function (name, i) {
@@ -43,13 +46,36 @@
       const input = document.createElement("input");
       input.type = "checkbox";
       input.id = "effect-" + name;
-      input.checked = on.includes(name);
       input.addEventListener("change", function () {
         send({ type: "effect", name: name, on: input.checked });
       });
       label.append(input, " " + (i + 1) + " " + name.replace("_", " "));
       box.append(label);
     });
+  }
+
+  // The view's state as the server tells every page (hello, then each
+  // change from any page): pause, effects, resets, trackers.
+  function show(m) {
+    state.paused = m.paused;
+    state.effects = m.effects;
+    state.resets = m.resets;
+    state.trackers = m.trackers;
+    document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
+    document.querySelectorAll("#effects input").forEach(function (input) {
+      input.checked = state.effects.includes(input.id.slice("effect-".length));
+    });
+    describe();
+  }
+
+  function describe() {
+    const header = state.header;
+    if (header === null) { overlay.textContent = state.paused ? "paused" : "connecting..."; return; }
+    const a = header.adaptation;
+    overlay.textContent =
+      header.fps.toFixed(0) + " frames/s  frame " + header.frame + "\n" +
+      "adapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
+      "t = " + header.t.toFixed(2) + " s" + (state.paused ? "  (paused)" : "");
   }
 
   async function draw(buffer) {
@@ -63,11 +89,7 @@
     state.header = header;
     state.seen.push([header.frame, header.digest]); // the last frames drawn, for tests
     if (state.seen.length > 300) state.seen.shift();
-    const a = header.adaptation;
-    overlay.textContent =
-      header.fps.toFixed(0) + " frames/s  frame " + header.frame + "\n" +
-      "adapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
-      "t = " + header.t.toFixed(2) + " s" + (state.paused ? "  (paused)" : "");
+    describe();
     ack();
   }
 
@@ -79,7 +101,10 @@
       canvas.width = m.size[0];
       canvas.height = m.size[1];
       fit();
-      effectBoxes(m.available_effects, m.effects);
+      effectBoxes(m.available_effects);
+      show(m);
+    } else if (m.type === "state") {
+      show(m);
     } else if (m.type === "error" || m.type === "warning") {
       state.errors.push(m.message);
       message.textContent = m.type + ": " + m.message;
@@ -106,10 +131,8 @@
     send({ type: "gaze", x: x, y: y, id: state.gazeId, t: performance.now() / 1000 });
   });
 
-  function pause() {
-    state.paused = !state.paused;
-    document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
-    send({ type: "pause", paused: state.paused });
+  function pause() { // (the server tells every page, this one included)
+    send({ type: "pause", paused: !state.paused });
   }
   document.getElementById("pause").addEventListener("click", pause);
   document.getElementById("reset").addEventListener("click", function () { send({ type: "reset" }); });
