@@ -234,6 +234,18 @@ def test_a_page_off_loopback_works_with_its_token(remote, browser):
         assert b"WebSocket" in response.read()
 
 
+def test_without_effects_the_page_offers_none(remote, browser, viewer):
+    """pattanaik2000 switches no effects: no check boxes and no keys for
+    them on its page; jacobs2015's page lists its six."""
+    assert browser.find_element("id", "effects-help").is_displayed()
+    assert browser.find_element("id", "effects-last").text == "6"
+    with _new_window(browser, remote.url):
+        _until(lambda: browser.execute_script("return window.jaxadapt.frames") > 0, "a frame")
+        assert not browser.find_element("id", "effects-help").is_displayed()
+        assert browser.find_elements("css selector", "#effects input") == []
+        assert "effects" not in browser.find_element("class name", "help").text
+
+
 def test_afterimage_of_a_flash_moves_with_the_gaze(viewer, browser):
     """The flash (1/8 s of 1e7 cd/m2 at 0.25 s, fixated at the centre)
     leaves a bleaching afterimage on the retina (Jacobs 2015, Fig. 4): where
@@ -316,6 +328,10 @@ def test_an_external_tracker_drives_the_gaze(viewer, browser):
                 await asyncio.to_thread(
                     _until, lambda: _near(_state(viewer)["gaze"], (12.5, 80), 0.01), "tracked"
                 )
+                status = browser.find_element("id", "status")
+                await asyncio.to_thread(
+                    _until, lambda: "pointer is ignored" in status.text, "the page told"
+                )
                 _point(browser, 90, 20)  # ignored while a tracker drives the gaze
                 await asyncio.sleep(0.2)
                 assert _near(_state(viewer)["gaze"], (12.5, 80), 0.01)
@@ -325,6 +341,7 @@ def test_an_external_tracker_drives_the_gaze(viewer, browser):
                 )
 
     asyncio.run(track())
+    _until(lambda: browser.find_element("id", "status").text == "", "the page told: gone")
 
 
 def test_effects_pause_and_a_page_that_falls_behind(viewer, browser):
@@ -426,6 +443,20 @@ def test_recorded_session_replays_to_the_frames_shown(viewer, browser, tmp_path)
     assert all(digests[frame] == digest for frame, digest in seen)
     times, points = read_gaze_csv(viewer.record / "gaze.csv")  # what render --gaze reads
     assert len(times) == len(rows) and np.isnan(points).any()  # the tracker's blink
+
+
+def test_the_page_says_when_the_server_stopped(viewer, browser):
+    """Stopped (as Ctrl-C stops it), the server closes the page's socket:
+    the page says so, shows no frame rate, and dims the last picture."""
+    viewer.close()
+    status = browser.find_element("id", "status")
+    _until(lambda: "the server stopped" in status.text, "the page told")
+    assert "frames/s" not in browser.find_element("id", "overlay").text
+    assert "the server stopped" in browser.find_element("id", "overlay").text
+    opacity = browser.execute_script(
+        "return getComputedStyle(document.getElementById('view')).opacity"
+    )
+    assert float(opacity) < 0.5
 
 
 @pytest.mark.skipif(not os.environ.get("JAXADAPT_SCREENSHOT"), reason="JAXADAPT_SCREENSHOT unset")

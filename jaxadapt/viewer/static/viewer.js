@@ -5,9 +5,10 @@
   const context = canvas.getContext("2d");
   const overlay = document.getElementById("overlay");
   const message = document.getElementById("message");
+  const status = document.getElementById("status");
   const state = {
     frames: 0, header: null, size: [16, 9], paused: false, effects: [], resets: 0, trackers: 0,
-    gazeId: 0, errors: [], seen: [],
+    gazeId: 0, errors: [], seen: [], closed: null,
   };
   window.jaxadapt = state; // for tests and the curious
   const url = new URL("ws", location.href);
@@ -52,6 +53,8 @@
       label.append(input, " " + (i + 1) + " " + name.replace("_", " "));
       box.append(label);
     });
+    document.getElementById("effects-help").hidden = available.length === 0;
+    document.getElementById("effects-last").textContent = String(available.length);
   }
 
   // The view's state as the server tells every page (hello, then each
@@ -68,8 +71,18 @@
     describe();
   }
 
+  // The overlay (frame rate, adaptation, time) and the status line (the
+  // server stopped, a tracker driving the gaze, simulated time lagging).
   function describe() {
     const header = state.header;
+    status.className = state.closed === null ? "" : "stopped";
+    if (state.closed !== null) {
+      status.textContent = state.closed;
+      overlay.textContent = state.closed + (header === null ? "" : "\nlast frame " + header.frame);
+      return;
+    }
+    status.textContent = state.trackers > 0
+      ? "an eye tracker drives the gaze: the pointer is ignored" : "";
     if (header === null) { overlay.textContent = state.paused ? "paused" : "connecting..."; return; }
     const a = header.adaptation;
     overlay.textContent =
@@ -83,6 +96,7 @@
     const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
     const blob = new Blob([new Uint8Array(buffer, 4 + length)], { type: "image/jpeg" });
     const bitmap = await createImageBitmap(blob);
+    if (state.closed !== null) { bitmap.close(); return; } // (closed while it decoded)
     context.drawImage(bitmap, 0, 0);
     bitmap.close();
     state.frames += 1;
@@ -113,7 +127,11 @@
     }
   });
   socket.addEventListener("close", function (event) {
-    overlay.textContent = "disconnected" + (event.reason ? ": " + event.reason : "");
+    state.closed = event.code === 1001 && event.reason === "server stopped"
+      ? "the server stopped: start jaxadapt view again, then reload this page"
+      : "disconnected (" + event.code + (event.reason ? " " + event.reason : "") + "): reload this page";
+    canvas.classList.add("stopped");
+    describe();
   });
 
   // The canvas's area in frame pixels, whose centres are whole numbers: from
