@@ -420,6 +420,31 @@ def test_pages_agree_on_pause_effects_and_resets(viewer, browser):
     _until(lambda: "acuity" in _state(viewer)["effects"], "acuity on again")
 
 
+def test_the_page_says_when_simulated_time_falls_behind(viewer, browser, monkeypatch):
+    """Frames that take longer than MAX_DT to compute: the page says how
+    slow simulated time runs and how far behind, and stops saying it once
+    frames keep up again."""
+    from jaxadapt.viewer import _server
+
+    monkeypatch.setattr(_server, "MAX_DT", 0.1)
+    session, advance = viewer.server.session, viewer.server.session.advance
+
+    def slow_advance(*args):
+        time.sleep(0.15)
+        return advance(*args)
+
+    status = browser.find_element("id", "status")
+    session.advance = slow_advance
+    try:
+        text = _until(lambda: status.text, "the page told")
+        assert text.startswith("simulated time runs at ") and "% of real time (" in text
+        assert "s behind): a frame takes 0." in text and "advances it at most 0.1 s" in text
+        assert _state(viewer)["slow"] and _state(viewer)["lag"] > 0.1
+    finally:
+        del session.advance
+    _until(lambda: status.text == "", "the page told: in time again")
+
+
 def test_recorded_session_replays_to_the_frames_shown(viewer, browser, tmp_path):
     """The frames the browser drew (their digests) are those that
     :func:`replay`, and ``jaxadapt render --replay`` in its PNGs, make

@@ -378,6 +378,57 @@ def test_each_frame_advances_by_the_time_measured_and_clamped():
         sim.join(10)
 
 
+def test_a_machine_too_slow_for_real_time_says_so_and_when_it_keeps_up(monkeypatch):
+    """Frames whose work takes longer than MAX_DT advance the simulation by
+    MAX_DT only: from the second in a row, the frames' headers and the
+    terminal (once) say how slow and how far behind; two frames in time
+    clear it, and the terminal says so (once)."""
+    monkeypatch.setattr(_server, "MAX_DT", 0.1)
+    session = Session(SMALL)
+    session.warm()
+    lines = []
+    headers = asyncio.run(_slowed(session, lines.append))
+    assert [h["dt"] for h in headers[1:6]] == [0.1] * 5  # the work of frames 0 to 4
+    slow = [h for h in headers if h["slow"]]
+    assert [h["frame"] for h in slow] == [2, 3, 4, 5, 6]  # the second late, to 2 in time
+    assert 0.15 <= slow[0]["slow"]["frame_time"] < 0.6 and slow[0]["slow"]["max_dt"] == 0.1
+    assert slow[-1]["lag"] > slow[0]["lag"] >= 0.1  # two frames, each 0.05 s or more behind
+    assert headers[-1]["slow"] is None and headers[-1]["lag"] == slow[-1]["lag"]
+    assert len(lines) == 2, lines
+    assert lines[0].startswith("warning: simulated time runs slower than the wall clock: a frame")
+    assert "MAX_DT = 0.1 s, so it runs at " in lines[0] and "s behind so far" in lines[0]
+    assert lines[1].startswith("simulated time keeps up with the wall clock again (")
+
+
+async def _slowed(session, report):
+    """Watch frames as a page does: 5 frames whose work takes 0.15 s, then
+    frames at the machine's pace until 3 after the slow flag is gone."""
+    advance, slowed = session.advance, [5]
+
+    def slow_advance(*args):
+        if slowed[0] > 0:
+            slowed[0] -= 1
+            time.sleep(0.15)
+        return advance(*args)
+
+    session.advance = slow_advance
+    server = Server(session, report=report)
+    url = await server.start()
+    headers = []
+    try:
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(url.replace("http", "ws") + "ws") as ws:
+                while len(headers) < 40 and sum(not h["slow"] for h in headers[5:]) < 3:
+                    msg = await asyncio.wait_for(ws.receive(), 30)
+                    if msg.type == aiohttp.WSMsgType.BINARY:
+                        length = int.from_bytes(msg.data[:4], "big")
+                        headers.append(json.loads(msg.data[4 : 4 + length]))
+                        await ws.send_json({"type": "ack"})
+    finally:
+        await server.close()
+    return headers
+
+
 def test_guards_token_host_origin_paths_and_clients(monkeypatch):
     """With a token every request needs it; a foreign Host or Origin is
     refused; no path reaches the file system; pages beyond the limit are

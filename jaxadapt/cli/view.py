@@ -186,7 +186,10 @@ async def _serve(session, args, token, record, console):
             raise KeyboardInterrupt(signalled[0])
         return None if record is None else record()
 
-    server = Server(session, args.host, args.port, token)
+    def report(line):  # (simulated time falling behind, or keeping up again)
+        console.print(line, markup=False, highlight=False)
+
+    server = Server(session, args.host, args.port, token, report)
     W, H = session.shape[1], session.shape[0]
     console.print(f"compiling {args.operator} for {W}x{H} frames")
     try:

@@ -149,7 +149,13 @@ class Simulation(threading.Thread):
     waits until a page wants a frame, steps the session by the time since
     the last frame (clamped to :data:`MAX_DT`; :data:`FIRST_DT` for the
     first one and after a pause), encodes the frame and hands it to
-    ``publish(header, jpeg)``; ``recorder`` (optional) writes each frame."""
+    ``publish(header, jpeg)``; ``recorder`` (optional) writes each frame.
+
+    A frame whose own work (not the wait for a page) takes longer than
+    :data:`MAX_DT` loses the difference: simulated time falls behind the
+    wall clock. ``lag`` totals what was lost; ``slow`` holds the last such
+    frame's time from the second such frame in a row (a one-off, such as a
+    compile, is not) until two in a row keep up again."""
 
     def __init__(self, session, publish, recorder=None, max_fps=MAX_FPS):
         super().__init__(name="jaxadapt-viewer-simulation", daemon=True)
@@ -162,6 +168,7 @@ class Simulation(threading.Thread):
         self.times = collections.deque()
         self.last = None
         self.error = None
+        self.lag, self.slow, self._run = 0.0, None, 0  # (_run: frames slow (> 0) or not in a row)
 
     def want(self):
         """A page has room for a frame."""
@@ -207,7 +214,9 @@ class Simulation(threading.Thread):
 
     def _next(self):
         with self.cond:
+            start = time.monotonic()
             self.cond.wait_for(lambda: self.stopping or (self.wanted and not self.paused))
+            waited = time.monotonic() - start
             if self.stopping:
                 return False
             self.wanted = False
@@ -223,6 +232,8 @@ class Simulation(threading.Thread):
             time.sleep(self.min_interval - (now - last))
             now = time.monotonic()
         dt = FIRST_DT if last is None else min(now - last, MAX_DT)
+        if last is not None:
+            self._keep_time(now - last - waited)
         with self.cond:
             self.last = now
         frame = self.session.advance(dt, gaze)
@@ -244,9 +255,24 @@ class Simulation(threading.Thread):
             "effects": sorted(self.session.effects),
             "digest": frame.digest,
             "sent": time.time(),
+            "lag": self.lag,
+            "slow": self.slow,
         }
         self.publish(header, encode_jpeg(frame.pixels))
         return True
+
+    def _keep_time(self, work):
+        """Account a frame whose own work (since the last frame, less the
+        wait for a page) took ``work`` seconds."""
+        if work > MAX_DT:
+            self.lag += work - MAX_DT
+            self._run = max(self._run, 0) + 1
+            if self._run >= 2:
+                self.slow = {"frame_time": work, "max_dt": MAX_DT}
+        else:
+            self._run = min(self._run, 0) - 1
+            if self._run <= -2:
+                self.slow = None
 
 
 class Client:
@@ -268,10 +294,14 @@ class Server:
         Port (0: any free one).
     token : str or None
         Secret every request must carry as ``?token=``; None on loopback.
+    report : callable or None
+        Takes a line for the terminal: when simulated time starts to fall
+        behind the wall clock, and when it keeps up again.
     """
 
-    def __init__(self, session, host="127.0.0.1", port=0, token=None):
+    def __init__(self, session, host="127.0.0.1", port=0, token=None, report=None):
         self.session, self.host, self.port, self.token = session, host, port, token
+        self.report, self.slow = report, None
         self.clients, self.trackers = set(), set()
         # What every page shows, kept here (the simulation applies the
         # commands between frames, and none while paused)
@@ -399,6 +429,8 @@ class Server:
                 "operator": self.session.operator,
                 "available_effects": list(self.session.available_effects),
                 "clients": len(self.clients),
+                "lag": sim.lag,
+                "slow": sim.slow is not None,
                 **self.view_state(),
             }
         )
@@ -537,18 +569,38 @@ class Server:
     # -- frames -----------------------------------------------------------
 
     def _publish_threadsafe(self, header, jpeg):
-        self.loop.call_soon_threadsafe(self._publish, frame_message(header, jpeg))
+        message = frame_message(header, jpeg)
+        self.loop.call_soon_threadsafe(self._publish, message, header)
 
-    def _publish(self, message):
+    def _publish(self, message, header=None):
         """Send a frame to every page with room for it; the others skip it.
         The last is kept for a page that opens while the simulation is paused."""
         self.last_frame = message
+        if header is not None and (header["slow"] is None) != (self.slow is None):
+            self.slow = header["slow"]
+            if self.report is not None:
+                self.report(lag_message(header["slow"], header["lag"]))
         for client in list(self.clients):
             if client.unacked < WINDOW and not client.ws.closed:
                 client.unacked += 1
                 self.loop.create_task(_send(client.ws, message))
         if any(c.unacked < WINDOW for c in self.clients):
             self.sim.want()
+
+
+def lag_message(slow, lag):
+    """What to say when simulated time starts to fall behind the wall clock
+    (``slow``: the :attr:`Simulation.slow` of the frame) or keeps up again
+    (``slow`` None); ``lag``: seconds behind in all."""
+    if slow is None:
+        return f"simulated time keeps up with the wall clock again ({lag:.1f} s behind in all)"
+    share = slow["max_dt"] / slow["frame_time"]
+    return (
+        f"warning: simulated time runs slower than the wall clock: a frame takes "
+        f"{slow['frame_time']:.2f} s here and advances the simulation by at most "
+        f"MAX_DT = {slow['max_dt']:g} s, so it runs at {share:.0%} of real time "
+        f"({lag:.1f} s behind so far); a smaller --size keeps up"
+    )
 
 
 async def _send(ws, message):

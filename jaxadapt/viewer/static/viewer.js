@@ -81,8 +81,17 @@
       overlay.textContent = state.closed + (header === null ? "" : "\nlast frame " + header.frame);
       return;
     }
-    status.textContent = state.trackers > 0
-      ? "an eye tracker drives the gaze: the pointer is ignored" : "";
+    const notes = [];
+    if (state.trackers > 0) notes.push("an eye tracker drives the gaze: the pointer is ignored");
+    if (header !== null && header.slow) {
+      const slow = header.slow;
+      notes.push(
+        "simulated time runs at " + Math.round(100 * slow.max_dt / slow.frame_time) +
+        " % of real time (" + header.lag.toFixed(1) + " s behind): a frame takes " +
+        slow.frame_time.toFixed(2) + " s here and advances it at most " + slow.max_dt +
+        " s; a smaller --size keeps up");
+    }
+    status.textContent = notes.join("; ");
     if (header === null) { overlay.textContent = state.paused ? "paused" : "connecting..."; return; }
     const a = header.adaptation;
     overlay.textContent =
