@@ -527,13 +527,17 @@ async def _hosts(session):
 
 def test_a_tracker_s_bad_lines_get_errors_and_its_warnings_a_rate(monkeypatch):
     """On /gaze, every bad line gets a JSON error and the socket stays (one
-    nested too deeply to parse, an id that is no id); a flood of samples
+    too long, one nested too deeply to parse, an id that is no id); a flood of samples
     off the frame gets one warning per interval, then one saying how many
     went unsaid, and a ``clear`` once the samples are on the frame again;
     the frame reaches the pixels' outer edges (-0.5 to W - 0.5)."""
     monkeypatch.setattr(_server, "WARNING_INTERVAL", 0.3)
     replies = asyncio.run(_track(Session(SMALL)))
-    nested, bad_id, first, flood_over, later, clear, edge = replies
+    too_long, nested, bad_id, first, flood_over, later, clear, edge = replies
+    assert too_long == {
+        "type": "error",
+        "message": "expected messages of at most 65536 bytes, got 100000; left unread",
+    }
     assert nested["type"] == "error" and "nested too deeply to read" in nested["message"]
     assert bad_id["type"] == "error" and bad_id["message"].startswith("id: expected a number")
     assert first["type"] == "warning" and "off the 32x24 frame (-0.5 to 31.5" in first["message"]
@@ -558,7 +562,7 @@ async def _track(session):
     try:
         async with aiohttp.ClientSession() as http:
             async with http.ws_connect(url.replace("http", "ws") + "gaze") as ws:
-                for line in ("[" * 50000, '{"x": 1, "y": 2, "id": [[1]]}'):
+                for line in ("[" * 100000, "[" * 50000, '{"x": 1, "y": 2, "id": [[1]]}'):
                     await ws.send_str(line)
                     replies.append(await asyncio.wait_for(ws.receive_json(), 10))
                 off = '{"t": 0, "x": 40, "y": 3}\n'

@@ -31,6 +31,9 @@ WINDOW = 2
 MAX_CLIENTS = 8
 #: Largest message a client may send, bytes.
 MAX_MESSAGE = 2**16
+#: Largest message a socket takes at all, bytes: one over :data:`MAX_MESSAGE`
+#: and up to this is answered with an error, a larger one closes the socket (1009).
+MAX_SOCKET_MESSAGE = 2**20
 #: Highest frame rate computed, frames/s.
 MAX_FPS = 60.0
 #: Shortest time between two warnings to one client, s (those between are counted).
@@ -458,7 +461,7 @@ class Server:
     async def _page_socket(self, request):
         from aiohttp import WSMsgType, web
 
-        ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_MESSAGE, heartbeat=20)
+        ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_SOCKET_MESSAGE, heartbeat=20)
         await ws.prepare(request)
         if len(self.clients) >= MAX_CLIENTS:
             await ws.send_json({"type": "error", "message": f"at most {MAX_CLIENTS} pages"})
@@ -482,7 +485,9 @@ class Server:
         self.sim.want()
         try:
             async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
+                if _too_long(msg):
+                    await _error(ws, _too_long(msg))
+                elif msg.type == WSMsgType.TEXT:
                     await self._page_message(client, msg.data)
                 elif msg.type == WSMsgType.BINARY:
                     await _error(ws, "expected JSON text messages, got binary data")
@@ -535,15 +540,19 @@ class Server:
         """``/gaze``: JSON lines ``{"t": s, "x": px, "y": px}`` from a tracker."""
         from aiohttp import WSMsgType, web
 
-        ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_MESSAGE, heartbeat=20)
+        ws = web.WebSocketResponse(compress=False, max_msg_size=MAX_SOCKET_MESSAGE, heartbeat=20)
         await ws.prepare(request)
         self.trackers.add(ws)
         await self._tell_pages("trackers")
         warnings = Warnings(ws)
         try:
             async for msg in ws:
+                if _too_long(msg):
+                    await _error(ws, _too_long(msg))
+                    continue
                 if msg.type != WSMsgType.TEXT:
-                    await _error(ws, "expected JSON lines of text, got binary data")
+                    if msg.type == WSMsgType.BINARY:
+                        await _error(ws, "expected JSON lines of text, got binary data")
                     continue
                 for line in filter(str.strip, msg.data.splitlines()):
                     await self._tracker_line(ws, warnings, line)
@@ -622,6 +631,16 @@ async def _tell(ws, message):
 async def _error(ws, message, kind="error"):
     """Tell a client what was wrong with its message (the socket stays open)."""
     await _tell(ws, {"type": kind, "message": message})
+
+
+def _too_long(msg):
+    """What is wrong with a socket's message over :data:`MAX_MESSAGE`, or None."""
+    if not isinstance(msg.data, (str, bytes)):  # (not text or data: an error, a close)
+        return None
+    size = len(msg.data.encode() if isinstance(msg.data, str) else msg.data)
+    if size > MAX_MESSAGE:
+        return f"expected messages of at most {MAX_MESSAGE} bytes, got {size}; left unread"
+    return None
 
 
 def _flag(message, name, default=None):
