@@ -406,7 +406,8 @@ def test_pages_agree_on_pause_effects_and_resets(viewer, browser):
         assert script("window.jaxadapt.header.digest") == last["digest"]
         np.testing.assert_array_equal(_canvas(browser), pixels)
         assert browser.find_element("id", "pause").text == "resume"
-        assert "(paused)" in browser.find_element("id", "overlay").text
+        overlay = browser.find_element("id", "overlay").text
+        assert overlay.startswith(f"paused  frame {last['frame']}") and "frames/s" not in overlay
         browser.find_element("tag name", "body").send_keys(Keys.SPACE)  # once
         _until(lambda: not _state(viewer)["paused"], "resumed")
         browser.find_element("id", "effect-acuity").click()

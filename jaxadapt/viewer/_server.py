@@ -479,7 +479,7 @@ class Server:
                 **self.view_state(),
             }
         )
-        if self.last_frame is not None:  # (paused, the page has no other)
+        if self.last_frame is not None:  # its first picture (while paused, its only one)
             client.unacked += 1
             await _send(ws, self.last_frame)
         self.sim.want()

@@ -83,7 +83,7 @@
     }
     const notes = [];
     if (state.trackers > 0) notes.push("an eye tracker drives the gaze: the pointer is ignored");
-    if (header !== null && header.slow) {
+    if (header !== null && header.slow && !state.paused) {
       const slow = header.slow;
       notes.push(
         "simulated time runs at " + Math.round(100 * slow.max_dt / slow.frame_time) +
@@ -95,9 +95,9 @@
     if (header === null) { overlay.textContent = state.paused ? "paused" : "connecting..."; return; }
     const a = header.adaptation;
     overlay.textContent =
-      header.fps.toFixed(0) + " frames/s  frame " + header.frame + "\n" +
-      "adapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
-      "t = " + header.t.toFixed(2) + " s" + (state.paused ? "  (paused)" : "");
+      (state.paused ? "paused" : header.fps.toFixed(0) + " frames/s") + "  frame " + header.frame +
+      "\nadapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
+      "t = " + header.t.toFixed(2) + " s";
   }
 
   async function draw(buffer) {
