@@ -106,6 +106,11 @@
     const blob = new Blob([new Uint8Array(buffer, 4 + length)], { type: "image/jpeg" });
     const bitmap = await createImageBitmap(blob);
     if (state.closed !== null) { bitmap.close(); return; } // (closed while it decoded)
+    if (state.header !== null && header.frame < state.header.frame) {
+      bitmap.close(); // decoded after a newer frame (decodes may finish out of order)
+      ack();
+      return;
+    }
     context.drawImage(bitmap, 0, 0);
     bitmap.close();
     state.frames += 1;
