@@ -4,14 +4,17 @@ module. The server records the session, and the last test replays it."""
 
 import asyncio
 import base64
+import contextlib
 import hashlib
 import io
 import json
 import math
 import os
 import queue
+import socket
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from types import SimpleNamespace
@@ -31,14 +34,15 @@ CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver"
 W, H = 128, 96
 
 
-def _serve(session, record):
-    """A :class:`Server` of ``session`` in a thread of its own; returns it, its
-    URL and a function that stops it (its record then complete)."""
+def _serve(session, record, **options):
+    """A :class:`Server` of ``session`` (``options``: its host, token) in a
+    thread of its own; returns it, its URL and a function that stops it
+    (its record, where one is made, then complete)."""
     ready, stop = queue.Queue(), threading.Event()
 
     async def main():
-        server = Server(session)
-        url = await server.start(lambda: Recorder(record, session.spec))
+        server = Server(session, **options)
+        url = await server.start(record and (lambda: Recorder(record, session.spec)))
         ready.put((server, url))
         while not stop.is_set():
             await asyncio.sleep(0.05)
@@ -93,6 +97,30 @@ def browser(viewer, tmp_path_factory):
     driver.quit()
 
 
+@pytest.fixture(scope="module")
+def remote(browser):
+    """A second server, as ``--host 0.0.0.0`` serves it (a token in its URLs),
+    of pattanaik2000, whose page switches no effects."""
+    session = Session({"scene": "patches", "size": [64, 36], "operator": "pattanaik2000"})
+    server, url, close = _serve(session, None, host="0.0.0.0", token="s3cret-t0ken")
+    yield SimpleNamespace(server=server, url=url)
+    close()
+
+
+@contextlib.contextmanager
+def _new_window(browser, url):
+    """Open ``url`` in a second window of ``browser`` (the first one's page
+    stays open and visible) until the block ends."""
+    first = browser.current_window_handle
+    browser.switch_to.new_window("window")
+    try:
+        browser.get(url)
+        yield
+    finally:
+        browser.close()
+        browser.switch_to.window(first)
+
+
 def _until(condition, what, timeout=20.0):
     """Wait until ``condition()`` holds; its last value."""
     end = time.monotonic() + timeout
@@ -101,7 +129,7 @@ def _until(condition, what, timeout=20.0):
         if value:
             return value
         time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
+    raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
 
 
 def _state(viewer):
@@ -153,6 +181,26 @@ def test_gaze_in_state_follows_the_pointer(viewer, browser):
         assert frame["size"] == [W, H]
 
 
+def test_the_pointer_on_the_canvas_s_edge_pixels_is_on_the_frame(viewer, browser):
+    """The canvas's outermost CSS pixels map to the frame's edge pixels, with
+    no warning: the page maps its whole area into the frame."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    canvas = browser.find_element("id", "view")
+    w, h = canvas.size["width"], canvas.size["height"]
+    errors = len(browser.execute_script("return window.jaxadapt.errors"))
+    # (offsets from the pixel at the centre, at (w // 2, h // 2))
+    for offset, corner in (
+        (((w - 1) // 2, (h - 1) // 2), (W - 1, H - 1)),
+        ((-(w // 2), -(h // 2)), (0, 0)),
+    ):
+        ActionChains(browser, duration=0).move_to_element_with_offset(canvas, *offset).perform()
+        _until(lambda c=corner: _near(_state(viewer)["gaze"], c, 0.01), f"gaze at {corner}")
+    time.sleep(0.2)  # (a warning would be on its way)
+    assert len(browser.execute_script("return window.jaxadapt.errors")) == errors
+    assert browser.find_element("id", "message").text == ""
+
+
 def _near(gaze, point, tolerance):
     return gaze[0] is not None and math.dist(gaze, point) <= tolerance
 
@@ -164,6 +212,38 @@ def _afterimage_centre(pixels):
         return None
     y, x = np.nonzero(bright)
     return float(x.mean()), float(y.mean())
+
+
+def test_a_page_off_loopback_works_with_its_token(remote, browser):
+    """Bound to every address, the server prints URLs of the machine (no
+    0.0.0.0), each with the token; the page opened from one of them gets
+    its script, its socket and frames, while a request without the token
+    is refused."""
+    urls = remote.server.urls()
+    assert all("0.0.0.0" not in u and u.endswith("/?token=s3cret-t0ken") for u in urls)
+    assert urls[0].startswith(f"http://{socket.gethostname()}:") and "127.0.0.1" in urls[-1]
+    address = next((u for u in urls[1:-1]), urls[-1])  # an address other machines can use
+    with _new_window(browser, address):
+        _until(lambda: browser.execute_script("return window.jaxadapt.frames") > 3, "frames")
+        assert "frames/s" in browser.find_element("id", "overlay").text
+        assert _canvas(browser).max() > 100  # the patches drawn
+    bare = address.split("?")[0]
+    with pytest.raises(urllib.error.HTTPError, match="403"):
+        urllib.request.urlopen(bare + "state", timeout=5)
+    with urllib.request.urlopen(bare + "viewer.js", timeout=5) as response:  # no secret in it
+        assert b"WebSocket" in response.read()
+
+
+def test_without_effects_the_page_offers_none(remote, browser, viewer):
+    """pattanaik2000 switches no effects: no check boxes and no keys for
+    them on its page; jacobs2015's page lists its six."""
+    assert browser.find_element("id", "effects-help").is_displayed()
+    assert browser.find_element("id", "effects-last").text == "6"
+    with _new_window(browser, remote.url):
+        _until(lambda: browser.execute_script("return window.jaxadapt.frames") > 0, "a frame")
+        assert not browser.find_element("id", "effects-help").is_displayed()
+        assert browser.find_elements("css selector", "#effects input") == []
+        assert "effects" not in browser.find_element("class name", "help").text
 
 
 def test_afterimage_of_a_flash_moves_with_the_gaze(viewer, browser):
@@ -248,6 +328,10 @@ def test_an_external_tracker_drives_the_gaze(viewer, browser):
                 await asyncio.to_thread(
                     _until, lambda: _near(_state(viewer)["gaze"], (12.5, 80), 0.01), "tracked"
                 )
+                status = browser.find_element("id", "status")
+                await asyncio.to_thread(
+                    _until, lambda: "pointer is ignored" in status.text, "the page told"
+                )
                 _point(browser, 90, 20)  # ignored while a tracker drives the gaze
                 await asyncio.sleep(0.2)
                 assert _near(_state(viewer)["gaze"], (12.5, 80), 0.01)
@@ -257,6 +341,7 @@ def test_an_external_tracker_drives_the_gaze(viewer, browser):
                 )
 
     asyncio.run(track())
+    _until(lambda: browser.find_element("id", "status").text == "", "the page told: gone")
 
 
 def test_effects_pause_and_a_page_that_falls_behind(viewer, browser):
@@ -299,6 +384,86 @@ def test_effects_pause_and_a_page_that_falls_behind(viewer, browser):
     browser.find_element("id", "effect-dithering").click()
 
 
+def test_pages_agree_on_pause_effects_and_resets(viewer, browser):
+    """A page opened while the server is paused shows the last frame and
+    says it is paused, and one press of space resumes; an effect switched
+    or a reset on one page is told to every page."""
+    from selenium.webdriver.common.keys import Keys
+
+    def script(expression):
+        return browser.execute_script("return " + expression)
+
+    browser.find_element("tag name", "body").send_keys(Keys.SPACE)
+    try:
+        _pages_agree(viewer, browser, script)
+    finally:  # (the tests after want frames)
+        asyncio.run(_page_says(viewer, {"type": "pause", "paused": False}))
+    _until(lambda: browser.find_element("id", "pause").text == "pause", "told: resumed")
+    _until(lambda: not browser.find_element("id", "effect-acuity").is_selected(), "told: acuity")
+    browser.find_element("id", "effect-acuity").click()
+    _until(lambda: "acuity" in _state(viewer)["effects"], "acuity on again")
+
+
+async def _page_says(viewer, message):
+    async with aiohttp.ClientSession() as http:
+        async with http.ws_connect(viewer.url.replace("http", "ws") + "ws") as ws:
+            await ws.send_json(message)
+
+
+def _pages_agree(viewer, browser, script):
+    from selenium.webdriver.common.keys import Keys
+
+    _until(lambda: _state(viewer)["paused"], "paused")
+    _until(
+        lambda: script("window.jaxadapt.header.frame") == _state(viewer)["frame"] - 1,
+        lambda: f"the last frame drawn: {script('window.jaxadapt.header.frame')}, {_state(viewer)}",
+    )
+    last, pixels, resets = (
+        script("window.jaxadapt.header"),
+        _canvas(browser),
+        script("window.jaxadapt.resets"),
+    )
+    with _new_window(browser, viewer.url):
+        _until(lambda: script("window.jaxadapt.frames") == 1, "the last frame")
+        assert script("window.jaxadapt.header.digest") == last["digest"]
+        np.testing.assert_array_equal(_canvas(browser), pixels)
+        assert browser.find_element("id", "pause").text == "resume"
+        overlay = browser.find_element("id", "overlay").text
+        assert overlay.startswith(f"paused  frame {last['frame']}") and "frames/s" not in overlay
+        browser.find_element("tag name", "body").send_keys(Keys.SPACE)  # once
+        _until(lambda: not _state(viewer)["paused"], "resumed")
+        browser.find_element("id", "effect-acuity").click()
+        _until(lambda: "acuity" not in _state(viewer)["effects"], "acuity off")
+        browser.find_element("id", "reset").click()
+        _until(lambda: _state(viewer)["resets"] == resets + 1, "a reset")
+    _until(lambda: script("window.jaxadapt.resets") == resets + 1, "told: a reset")
+
+
+def test_the_page_says_when_simulated_time_falls_behind(viewer, browser, monkeypatch):
+    """Frames that take longer than MAX_DT to compute: the page says how
+    slow simulated time runs and how far behind, and stops saying it once
+    frames keep up again."""
+    from jaxadapt.viewer import _server
+
+    monkeypatch.setattr(_server, "MAX_DT", 0.1)
+    session, advance = viewer.server.session, viewer.server.session.advance
+
+    def slow_advance(*args):
+        time.sleep(0.15)
+        return advance(*args)
+
+    status = browser.find_element("id", "status")
+    session.advance = slow_advance
+    try:
+        text = _until(lambda: status.text, "the page told")
+        assert text.startswith("simulated time runs at ") and "% of real time (" in text
+        assert "s behind): a frame takes 0." in text and "advances it at most 0.1 s" in text
+        assert _state(viewer)["slow"] and _state(viewer)["lag"] > 0.1
+    finally:
+        del session.advance
+    _until(lambda: status.text == "", "the page told: in time again")
+
+
 def test_recorded_session_replays_to_the_frames_shown(viewer, browser, tmp_path):
     """The frames the browser drew (their digests) are those that
     :func:`replay`, and ``jaxadapt render --replay`` in its PNGs, make
@@ -322,6 +487,20 @@ def test_recorded_session_replays_to_the_frames_shown(viewer, browser, tmp_path)
     assert all(digests[frame] == digest for frame, digest in seen)
     times, points = read_gaze_csv(viewer.record / "gaze.csv")  # what render --gaze reads
     assert len(times) == len(rows) and np.isnan(points).any()  # the tracker's blink
+
+
+def test_the_page_says_when_the_server_stopped(viewer, browser):
+    """Stopped (as Ctrl-C stops it), the server closes the page's socket:
+    the page says so, shows no frame rate, and dims the last picture."""
+    viewer.close()
+    status = browser.find_element("id", "status")
+    _until(lambda: "the server stopped" in status.text, "the page told")
+    assert "frames/s" not in browser.find_element("id", "overlay").text
+    assert "the server stopped" in browser.find_element("id", "overlay").text
+    opacity = browser.execute_script(
+        "return getComputedStyle(document.getElementById('view')).opacity"
+    )
+    assert float(opacity) < 0.5
 
 
 @pytest.mark.skipif(not os.environ.get("JAXADAPT_SCREENSHOT"), reason="JAXADAPT_SCREENSHOT unset")

@@ -397,6 +397,57 @@ def test_each_frame_advances_by_the_time_measured_and_clamped():
         sim.join(10)
 
 
+def test_a_machine_too_slow_for_real_time_says_so_and_when_it_keeps_up(monkeypatch):
+    """Frames whose work takes longer than MAX_DT advance the simulation by
+    MAX_DT only: from the second in a row, the frames' headers and the
+    terminal (once) say how slow and how far behind; two frames in time
+    clear it, and the terminal says so (once)."""
+    monkeypatch.setattr(_server, "MAX_DT", 0.1)
+    session = Session(SMALL)
+    session.warm()
+    lines = []
+    headers = asyncio.run(_slowed(session, lines.append))
+    assert [h["dt"] for h in headers[1:6]] == [0.1] * 5  # the work of frames 0 to 4
+    slow = [h for h in headers if h["slow"]]
+    assert [h["frame"] for h in slow] == [2, 3, 4, 5, 6]  # the second late, to 2 in time
+    assert 0.15 <= slow[0]["slow"]["frame_time"] < 0.6 and slow[0]["slow"]["max_dt"] == 0.1
+    assert slow[-1]["lag"] > slow[0]["lag"] >= 0.1  # two frames, each 0.05 s or more behind
+    assert headers[-1]["slow"] is None and headers[-1]["lag"] == slow[-1]["lag"]
+    assert len(lines) == 2, lines
+    assert lines[0].startswith("warning: simulated time runs slower than the wall clock: a frame")
+    assert "MAX_DT = 0.1 s, so it runs at " in lines[0] and "s behind so far" in lines[0]
+    assert lines[1].startswith("simulated time keeps up with the wall clock again (")
+
+
+async def _slowed(session, report):
+    """Watch frames as a page does: 5 frames whose work takes 0.15 s, then
+    frames at the machine's pace until 3 after the slow flag is gone."""
+    advance, slowed = session.advance, [5]
+
+    def slow_advance(*args):
+        if slowed[0] > 0:
+            slowed[0] -= 1
+            time.sleep(0.15)
+        return advance(*args)
+
+    session.advance = slow_advance
+    server = Server(session, report=report)
+    url = await server.start()
+    headers = []
+    try:
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(url.replace("http", "ws") + "ws") as ws:
+                while len(headers) < 40 and sum(not h["slow"] for h in headers[5:]) < 3:
+                    msg = await asyncio.wait_for(ws.receive(), 30)
+                    if msg.type == aiohttp.WSMsgType.BINARY:
+                        length = int.from_bytes(msg.data[:4], "big")
+                        headers.append(json.loads(msg.data[4 : 4 + length]))
+                        await ws.send_json({"type": "ack"})
+    finally:
+        await server.close()
+    return headers
+
+
 def test_guards_token_host_origin_paths_and_clients(monkeypatch):
     """With a token every request needs it; a foreign Host or Origin is
     refused; no path reaches the file system; pages beyond the limit are
@@ -406,6 +457,8 @@ def test_guards_token_host_origin_paths_and_clients(monkeypatch):
     assert statuses == {
         "no token": 403,
         "token": 200,
+        "script": 200,
+        "script, foreign origin": 403,
         "state": 200,
         "traversal": 404,
         "foreign host": 403,
@@ -424,6 +477,8 @@ async def _probe(session):
                 ("no token", "", {}),
                 ("token", "?token=s3cret", {}),
                 ("state", "state?token=s3cret", {}),
+                ("script", "viewer.js", {}),  # the page's, loaded without the token
+                ("script, foreign origin", "viewer.js", {"Origin": "http://evil.example"}),
                 ("traversal", "..%2f..%2fetc%2fpasswd?token=s3cret", {}),
                 ("foreign origin", "?token=s3cret", {"Origin": "http://evil.example"}),
             ):
@@ -445,6 +500,120 @@ async def _probe(session):
     finally:
         await plain.close()
     return statuses
+
+
+def test_a_request_without_host_is_a_400_and_port_80_takes_a_bare_host(caplog):
+    """A request with no Host (curl -H 'Host:') is a 400 and no traceback on
+    the terminal; an empty Host is refused naming what was expected; on port
+    80 a browser's ``Host: localhost`` (no port) and its Origin are the
+    server's own."""
+    replies = asyncio.run(_hosts(Session(SMALL)))
+    assert replies["no Host"].split()[1] == b"400" and b"Host" in replies["no Host"]
+    assert not [r for r in caplog.records if r.exc_info], [r.getMessage() for r in caplog.records]
+    empty = replies["empty Host"]
+    assert empty.startswith(b"HTTP/1.1 403") and b"Host: expected 127.0.0.1:" in empty
+    assert empty.endswith(b"got ''\n")
+    assert replies["localhost, port 80"] == replies["origin, port 80"] == 200
+    assert replies["localhost:8765, port 80"] == replies["evil.example, port 80"] == 403
+
+
+async def _hosts(session):
+    server = Server(session)
+    await server.start()
+    port, replies = server.port, {}
+    try:
+        for case, host in (("no Host", None), ("empty Host", "")):
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            line = "" if host is None else f"Host: {host}\r\n"
+            writer.write(f"GET /state HTTP/1.1\r\n{line}Connection: close\r\n\r\n".encode())
+            replies[case] = await asyncio.wait_for(reader.read(), 10)
+            writer.close()
+        server.port = 80  # (as bound to port 80, which a test cannot bind)
+        async with aiohttp.ClientSession() as http:
+            for case, headers in (
+                ("localhost, port 80", {"Host": "localhost"}),
+                ("origin, port 80", {"Host": "localhost", "Origin": "http://localhost"}),
+                ("localhost:8765, port 80", {"Host": "localhost:8765"}),
+                ("evil.example, port 80", {"Host": "evil.example"}),
+            ):
+                async with http.get(f"http://127.0.0.1:{port}/state", headers=headers) as r:
+                    replies[case] = r.status
+    finally:
+        server.port = port
+        await server.close()
+    return replies
+
+
+def test_a_tracker_s_bad_lines_get_errors_and_its_warnings_a_rate(monkeypatch):
+    """On /gaze, every bad line gets a JSON error and the socket stays (one
+    too long, one nested too deeply to parse, an id that is no id); a flood of samples
+    off the frame gets one warning per interval, then one saying how many
+    went unsaid, and a ``clear`` once the samples are on the frame again;
+    the frame reaches the pixels' outer edges (-0.5 to W - 0.5)."""
+    monkeypatch.setattr(_server, "WARNING_INTERVAL", 0.3)
+    replies = asyncio.run(_track(Session(SMALL)))
+    too_long, nested, bad_id, first, flood_over, later, clear, edge = replies
+    assert too_long == {
+        "type": "error",
+        "message": "expected messages of at most 65536 bytes, got 100000; left unread",
+    }
+    assert nested["type"] == "error" and "nested too deeply to read" in nested["message"]
+    assert bad_id["type"] == "error" and bad_id["message"].startswith("id: expected a number")
+    assert first["type"] == "warning" and "off the 32x24 frame (-0.5 to 31.5" in first["message"]
+    assert flood_over == []  # the 1999 after the first, within the interval
+    assert later["type"] == "warning" and "(1999 more left unsaid in the last" in later["message"]
+    assert clear == {"type": "clear", "message": "x, y: on the frame again"}
+    assert edge == {"gaze": [31.0, 0.0], "messages": []}
+
+
+async def _track(session):
+    server = Server(session)
+    url = await server.start()
+    replies = []
+
+    async def received(ws, wait=0.1):
+        found = []
+        with contextlib.suppress(asyncio.TimeoutError):
+            while True:
+                found.append(await asyncio.wait_for(ws.receive_json(), wait))
+        return found
+
+    try:
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(url.replace("http", "ws") + "gaze") as ws:
+                for line in ("[" * 100000, "[" * 50000, '{"x": 1, "y": 2, "id": [[1]]}'):
+                    await ws.send_str(line)
+                    replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                off = '{"t": 0, "x": 40, "y": 3}\n'
+                await ws.send_str(off * 2000)
+                replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                replies.append(await received(ws))
+                await asyncio.sleep(0.3)
+                await ws.send_str(off)
+                replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                await ws.send_str('{"t": 1, "x": 5, "y": 5}')
+                replies.append(await asyncio.wait_for(ws.receive_json(), 10))
+                await ws.send_str('{"t": 2, "x": 31.5, "y": -0.5}')
+                messages = await received(ws, 0.3)
+                async with http.get(url + "state") as response:
+                    replies.append({"gaze": (await response.json())["gaze"], "messages": messages})
+    finally:
+        await server.close()
+    return replies
+
+
+def test_bound_to_every_address_the_urls_are_the_machine_s():
+    """0.0.0.0 is no address a browser can open: the URLs are the machine's
+    name, then its addresses, loopback's last, each with the token."""
+    server = Server(Session(SMALL), host="0.0.0.0", token="s3cret")
+    server.port = 8765
+    urls = server.urls()
+    hosts = [u.removeprefix("http://").removesuffix(":8765/?token=s3cret") for u in urls]
+    assert hosts[0] == socket.gethostname() and hosts[-1] == "127.0.0.1"
+    assert "0.0.0.0" not in hosts and len(set(hosts)) == len(hosts)
+    assert [u.removeprefix("http://") for u in Server(Session(SMALL), host="::1").urls()] == [
+        "[::1]:0/"
+    ]
 
 
 def _default_signals():

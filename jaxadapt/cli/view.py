@@ -83,7 +83,8 @@ def _server_options():
     """The options of the server and the record."""
     return (
         (("--host",), dict(default="127.0.0.1", help="address to listen on (default: "
-            "127.0.0.1, this machine only); any other requires the token printed at start")),
+            "127.0.0.1, this machine only; 0.0.0.0: every IPv4 address); any other requires "
+            "the token in the URLs printed at start")),
         (("--port",), dict(type=_port, default=8765, help="port (default: 8765; 0: any free "
             "one)")),
         (("--no-browser",), dict(action="store_true", help="do not open the page in a browser")),
@@ -186,7 +187,10 @@ async def _serve(session, args, token, record, console):
             raise KeyboardInterrupt(signalled[0])
         return None if record is None else record()
 
-    server = Server(session, args.host, args.port, token)
+    def report(line):  # (simulated time falling behind, or keeping up again)
+        console.print(line, markup=False, highlight=False)
+
+    server = Server(session, args.host, args.port, token, report)
     W, H = session.shape[1], session.shape[0]
     console.print(f"compiling {args.operator} for {W}x{H} frames")
     try:
@@ -201,9 +205,12 @@ async def _serve(session, args, token, record, console):
     finally:
         if server.sim.ident is None:  # not started: the handlers go with the error
             restore()
+    urls = server.urls()  # (bound to every address: the machine's names, loopback's last)
     _report(f"jaxadapt view: serving {url} (Ctrl-C stops)")
+    if len(urls) > 1:
+        _report(f"  also at {', '.join(urls[1:])}")
     if not args.no_browser:
-        loop.run_in_executor(None, webbrowser.open, url)
+        loop.run_in_executor(None, webbrowser.open, urls[-1])
     try:
         while not stop.is_set() and server.sim.is_alive():
             try:

@@ -5,7 +5,11 @@
   const context = canvas.getContext("2d");
   const overlay = document.getElementById("overlay");
   const message = document.getElementById("message");
-  const state = { frames: 0, header: null, size: [16, 9], paused: false, gazeId: 0, errors: [], seen: [] };
+  const status = document.getElementById("status");
+  const state = {
+    frames: 0, header: null, size: [16, 9], paused: false, effects: [], resets: 0, trackers: 0,
+    gazeId: 0, errors: [], seen: [], closed: null,
+  };
   window.jaxadapt = state; // for tests and the curious
   const url = new URL("ws", location.href);
   url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
@@ -35,7 +39,7 @@
   }
   addEventListener("resize", fit);
 
-  function effectBoxes(available, on) {
+  function effectBoxes(available) {
     const box = document.getElementById("effects");
     box.textContent = "";
     available.forEach(function (name, i) {
@@ -43,13 +47,57 @@
       const input = document.createElement("input");
       input.type = "checkbox";
       input.id = "effect-" + name;
-      input.checked = on.includes(name);
       input.addEventListener("change", function () {
         send({ type: "effect", name: name, on: input.checked });
       });
       label.append(input, " " + (i + 1) + " " + name.replace("_", " "));
       box.append(label);
     });
+    document.getElementById("effects-help").hidden = available.length === 0;
+    document.getElementById("effects-last").textContent = String(available.length);
+  }
+
+  // The view's state as the server tells every page (hello, then each
+  // change from any page): pause, effects, resets, trackers.
+  function show(m) {
+    state.paused = m.paused;
+    state.effects = m.effects;
+    state.resets = m.resets;
+    state.trackers = m.trackers;
+    document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
+    document.querySelectorAll("#effects input").forEach(function (input) {
+      input.checked = state.effects.includes(input.id.slice("effect-".length));
+    });
+    describe();
+  }
+
+  // The overlay (frame rate, adaptation, time) and the status line (the
+  // server stopped, a tracker driving the gaze, simulated time lagging).
+  function describe() {
+    const header = state.header;
+    status.className = state.closed === null ? "" : "stopped";
+    if (state.closed !== null) {
+      status.textContent = state.closed;
+      overlay.textContent = state.closed + (header === null ? "" : "\nlast frame " + header.frame);
+      return;
+    }
+    const notes = [];
+    if (state.trackers > 0) notes.push("an eye tracker drives the gaze: the pointer is ignored");
+    if (header !== null && header.slow && !state.paused) {
+      const slow = header.slow;
+      notes.push(
+        "simulated time runs at " + Math.round(100 * slow.max_dt / slow.frame_time) +
+        " % of real time (" + header.lag.toFixed(1) + " s behind): a frame takes " +
+        slow.frame_time.toFixed(2) + " s here and advances it at most " + slow.max_dt +
+        " s; a smaller --size keeps up");
+    }
+    status.textContent = notes.join("; ");
+    if (header === null) { overlay.textContent = state.paused ? "paused" : "connecting..."; return; }
+    const a = header.adaptation;
+    overlay.textContent =
+      (state.paused ? "paused" : header.fps.toFixed(0) + " frames/s") + "  frame " + header.frame +
+      "\nadapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
+      "t = " + header.t.toFixed(2) + " s";
   }
 
   async function draw(buffer) {
@@ -57,17 +105,19 @@
     const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
     const blob = new Blob([new Uint8Array(buffer, 4 + length)], { type: "image/jpeg" });
     const bitmap = await createImageBitmap(blob);
+    if (state.closed !== null) { bitmap.close(); return; } // (closed while it decoded)
+    if (state.header !== null && header.frame < state.header.frame) {
+      bitmap.close(); // decoded after a newer frame (decodes may finish out of order)
+      ack();
+      return;
+    }
     context.drawImage(bitmap, 0, 0);
     bitmap.close();
     state.frames += 1;
     state.header = header;
     state.seen.push([header.frame, header.digest]); // the last frames drawn, for tests
     if (state.seen.length > 300) state.seen.shift();
-    const a = header.adaptation;
-    overlay.textContent =
-      header.fps.toFixed(0) + " frames/s  frame " + header.frame + "\n" +
-      "adapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
-      "t = " + header.t.toFixed(2) + " s" + (state.paused ? "  (paused)" : "");
+    describe();
     ack();
   }
 
@@ -79,28 +129,42 @@
       canvas.width = m.size[0];
       canvas.height = m.size[1];
       fit();
-      effectBoxes(m.available_effects, m.effects);
+      effectBoxes(m.available_effects);
+      show(m);
+    } else if (m.type === "state") {
+      show(m);
     } else if (m.type === "error" || m.type === "warning") {
       state.errors.push(m.message);
       message.textContent = m.type + ": " + m.message;
+    } else if (m.type === "clear") { // the warning shown no longer applies
+      if (message.textContent.startsWith("warning: ")) message.textContent = "";
     }
   });
   socket.addEventListener("close", function (event) {
-    overlay.textContent = "disconnected" + (event.reason ? ": " + event.reason : "");
+    state.closed = event.code === 1001 && event.reason === "server stopped"
+      ? "the server stopped: start jaxadapt view again, then reload this page"
+      : "disconnected (" + event.code + (event.reason ? " " + event.reason : "") + "): reload this page";
+    canvas.classList.add("stopped");
+    describe();
   });
+
+  // The canvas's area in frame pixels, whose centres are whole numbers: from
+  // -0.5 at its left or top edge to W - 0.5 at its right or bottom edge.
+  function framePixel(client, start, extent, pixels) {
+    const x = (client - start) / extent * pixels - 0.5;
+    return Math.min(Math.max(x, -0.5), pixels - 0.5);
+  }
 
   canvas.addEventListener("pointermove", function (event) {
     const rect = canvas.getBoundingClientRect();
-    const x = (event.clientX - rect.left) / rect.width * canvas.width - 0.5;
-    const y = (event.clientY - rect.top) / rect.height * canvas.height - 0.5;
+    const x = framePixel(event.clientX, rect.left, rect.width, canvas.width);
+    const y = framePixel(event.clientY, rect.top, rect.height, canvas.height);
     state.gazeId += 1;
     send({ type: "gaze", x: x, y: y, id: state.gazeId, t: performance.now() / 1000 });
   });
 
-  function pause() {
-    state.paused = !state.paused;
-    document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
-    send({ type: "pause", paused: state.paused });
+  function pause() { // (the server tells every page, this one included)
+    send({ type: "pause", paused: !state.paused });
   }
   document.getElementById("pause").addEventListener("click", pause);
   document.getElementById("reset").addEventListener("click", function () { send({ type: "reset" }); });
