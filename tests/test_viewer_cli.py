@@ -8,7 +8,6 @@ import math
 import signal
 import socket
 import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -16,10 +15,11 @@ from pathlib import Path
 import aiohttp
 import jax
 import numpy as np
+import processes
 import pytest
 from PIL import Image
 
-from jaxadapt._signals import SIGNALS, interrupted_message
+from jaxadapt._signals import interrupted_message
 from jaxadapt.cli import main
 from jaxadapt.gaze import read_gaze_csv, write_gaze_csv
 from jaxadapt.viewer import (
@@ -324,13 +324,12 @@ def test_ctrl_c_while_the_view_starts_is_130_and_records_nothing(when, tmp_path)
     then waits for the compile): one line that does not speak of --out
     (it did), status 130, and no record."""
     record = tmp_path / "record"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", "view", "--no-browser", "--port", "0", *SMALL_ARGS]
+    process = processes.python(
+        ["-m", "jaxadapt", "view", "--no-browser", "--port", "0", *SMALL_ARGS]
         + ["--record", str(record)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_default_signals,
     )
     try:
         if when == "importing":
@@ -616,21 +615,15 @@ def test_bound_to_every_address_the_urls_are_the_machine_s():
     ]
 
 
-def _default_signals():
-    for s in SIGNALS:
-        signal.signal(s, signal.SIG_DFL)
-
-
 @pytest.mark.slow
 def test_ctrl_c_stops_cleanly_with_the_record_complete(tmp_path):
     record = tmp_path / "record"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "jaxadapt", "view", "--no-browser", "--port", "0"]
+    process = processes.python(
+        ["-m", "jaxadapt", "view", "--no-browser", "--port", "0"]
         + ["--scene", "flash", "--size", "48x32", "--record", str(record)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_default_signals,
     )
     try:
         line = process.stdout.readline()

@@ -138,13 +138,6 @@ def view(args, console):
     from jaxadapt.viewer._server import is_loopback
 
     spec = _spec(args)
-    try:
-        import aiohttp  # noqa: F401
-        import PIL  # noqa: F401
-    except ImportError as error:
-        raise UsageError(
-            f"view: needs {error.name}, of the viewer extra: pip install 'jaxadapt[viewer]'"
-        ) from None
     if args.record is not None:
         Recorder.check(args.record)
     try:

@@ -317,7 +317,7 @@ class Server:
         }
 
     def app(self):
-        from aiohttp import web  # (the viewer extra: the package imports without it)
+        from aiohttp import web  # (imported when served: `import jaxadapt` stays light)
 
         guard = web.middleware(lambda request, handler: self._guard(request, handler))
         app = web.Application(middlewares=[guard], client_max_size=MAX_MESSAGE)
