@@ -5,6 +5,7 @@ import inspect
 import subprocess
 import sys
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,7 +24,7 @@ def _signature(function, method=False):
 def test_each_operator_module_keeps_the_contract(name):
     op = OPERATORS[name]
     assert isinstance(op, Operator)
-    for function in ("init", "step", "run", "diagnostics_table"):
+    for function in ("init", "step", "run", "diagnostics_table", "log_adaptation"):
         assert _signature(getattr(op, function)) == _signature(
             getattr(Operator, function), method=True
         ), (name, function)
@@ -70,4 +71,65 @@ def test_the_registry_imports_an_operator_only_when_asked_for():
         "OPERATORS['jacobs2015']; assert 'jaxadapt.operators.jacobs2015' in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
-    assert set(operators.__all__) == {"OPERATORS", "TONE_CURVE_NAMES", "Operator"}
+    assert set(operators.__all__) == {"OPERATORS", "TONE_CURVE_NAMES", "Operator", "Supports"}
+    code = (
+        "import sys; from jaxadapt.operators import OPERATORS; OPERATORS.having('live'); "
+        "OPERATORS.supports('jacobs2015').effects; "
+        "assert not any(m.startswith('jaxadapt.operators.') for m in sys.modules), sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("name", OPERATORS.having("time_dependent"))
+def test_composable_says_whether_the_state_update_is_affine(name):
+    # For a held frame, the step of a mix of two states is the mix of their
+    # steps exactly when the registry says the operator is composable (the
+    # basis of splitting a sequence in time).
+    op, params, key = OPERATORS[name], OPERATORS[name].Params(), jax.random.key(0)
+    rng = np.random.default_rng(0)
+    with jax.enable_x64(True):
+        frames = [jnp.asarray(rng.lognormal(m, 2.0, (8, 12, 3))) for m in (0.0, 4.0, 2.0)]
+        a, b = (op.init(params, f, key=key) for f in frames[:2])
+
+        def step(state):
+            return op.step(params, state, frames[2], 0.5, key=key)[0]
+
+        def mix(x, y):  # (keys and other non-float leaves as in x)
+            floating = eqx.is_inexact_array
+            return jax.tree.map(lambda u, v: 0.3 * u + 0.7 * v if floating(u) else u, x, y)
+
+        gaps = [
+            float(jnp.max(jnp.abs(u - v)))
+            for u, v in zip(
+                jax.tree.leaves(eqx.filter(step(mix(a, b)), eqx.is_inexact_array)),
+                jax.tree.leaves(eqx.filter(mix(step(a), step(b)), eqx.is_inexact_array)),
+                strict=True,
+            )
+        ]
+    assert (max(gaps) < 1e-9) == OPERATORS.supports(name).composable, gaps
+
+
+def test_no_operator_is_told_apart_by_its_name_outside_the_registry():
+    # What an operator supports is data (OPERATORS.supports): no module of
+    # the package compares a name with an operator's.
+    import ast
+    from pathlib import Path
+
+    package = Path(operators.__file__).resolve().parent.parent
+    names = set(OPERATORS)
+    compared = []
+    for path in package.rglob("*.py"):
+        if path == Path(operators.__file__).resolve():
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                sides = [node.left, *node.comparators]
+                literals = [
+                    e.value
+                    for side in sides
+                    for e in ([side] + list(getattr(side, "elts", [])))
+                    if isinstance(e, ast.Constant) and e.value in names
+                ]
+                if literals:
+                    compared.append(f"{path.relative_to(package)}:{node.lineno} {literals}")
+    assert not compared, compared

@@ -264,29 +264,32 @@ def _check_options(args):
         for option in ("scene", "size", "duration"):
             if getattr(args, option) is not None:
                 raise UsageError(f"--{option}: applies to a built-in scene, not to FILE input")
-    if args.adaptation_goal is not None and args.operator != "pattanaik2000":
-        raise UsageError(
-            f"--adaptation-goal: applies to --operator pattanaik2000, not {args.operator}"
+    from jaxadapt.operators import OPERATORS
+
+    name, supports = args.operator, OPERATORS.supports(args.operator)
+    # (option, whether given, the capability that takes it), in the order checked
+    for option, given, capability in (
+        ("adaptation_goal", args.adaptation_goal is not None, "adaptation_goal"),
+        ("background", args.background != "global", "local_background"),
+        ("encoding", args.encoding is not None, None),  # (not for display_encoded ones)
+        ("seed", args.seed is not None, "seed"),
+        ("gaze", args.gaze is not None, "gaze"),
+        ("pixels_per_degree", args.pixels_per_degree is not None, "time_dependent"),
+    ):
+        taken = (
+            not supports.display_encoded if capability is None else getattr(supports, capability)
         )
-    if args.operator == "jacobs2015" and args.background != "global":
-        raise UsageError(
-            "--background: does not apply to --operator jacobs2015, which adapts to the "
-            "foveal luminance and finds local luminance itself"
-        )
-    if args.operator == "jacobs2015" and args.encoding is not None:
-        raise UsageError(
-            "--encoding: does not apply to --operator jacobs2015, whose display values are "
-            "its own gamma encoding"
-        )
-    if args.seed is not None and args.operator != "jacobs2015":
-        raise UsageError(f"--seed: applies to --operator jacobs2015, not {args.operator}")
-    static = args.operator not in ("pattanaik2000", "jacobs2015")
-    for option in ("gaze", "pixels_per_degree"):
-        if static and getattr(args, option) is not None:
+        if not given or taken:
+            continue
+        flag = f"--{option.replace('_', '-')}"
+        if not supports.time_dependent and option in ("gaze", "pixels_per_degree"):
+            raise UsageError(f"{flag}: does not apply to the static tone curve {name}")
+        if option in supports.why_not:
             raise UsageError(
-                f"--{option.replace('_', '-')}: does not apply to the static tone curve "
-                f"{args.operator}"
+                f"{flag}: does not apply to --operator {name}, {supports.why_not[option]}"
             )
+        having = ", ".join(OPERATORS.having(capability))
+        raise UsageError(f"{flag}: applies to --operator {having}, not {name}")
     if args.background_scale is not None and args.background in ("global", "arithmetic"):
         raise UsageError(
             f"--background-scale: applies to a local --background, not {args.background}"

@@ -94,7 +94,11 @@ def render(args, console):
             f"--replay: a video (--format mp4, a default) needs at least {MP4_MIN_FPS:g} "
             f"frames/s, the session ran at {fps:g}; choose --format png"
         )
-    encoding = "gamma" if spec.get("operator", "jacobs2015") == "jacobs2015" else "srgb"
+    from jaxadapt.operators import OPERATORS
+    from jaxadapt.viewer._session import DEFAULT_OPERATOR
+
+    operator = spec.get("operator", DEFAULT_OPERATOR)
+    encoding = "gamma" if OPERATORS.supports(operator).display_encoded else "srgb"
     digits = max(5, len(str(len(rows) - 1)))
     shown = set(np.linspace(0, len(rows) - 1, min(CONTACT_FRAMES, len(rows))).round().astype(int))
     contact, labels, table, differ = [], [], [], []
@@ -130,7 +134,7 @@ def render(args, console):
         figures.plot_columns(
             staging / "adaptation.png",
             {k: table[k] for k in ("t", "adaptation", "gaze_x", "gaze_y")},
-            title=f"replay of {path}: {spec.get('operator', 'jacobs2015')}",
+            title=f"replay of {path}: {operator}",
             units={"adaptation": "cd/m2", "gaze_x": "px", "gaze_y": "px"},
         )
         count = len(list(staging.iterdir()))

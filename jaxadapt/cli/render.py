@@ -140,8 +140,10 @@ def _warn_gaze_off_frame(source, shape, path, console):
 
 
 def _operator(args, source, fps):
-    """The operator module, its parameters (for frames at ``fps``), the plot of
-    its diagnostics and whether its frames come display-encoded."""
+    """The operator module, its parameters (for frames at ``fps``) and the
+    plot of its diagnostics. Each module's parameters are made here from the
+    options (the checks of which options an operator takes, from the
+    registry, are :func:`_check_options`')."""
     from functools import partial
 
     from jaxadapt import figures
@@ -181,14 +183,13 @@ def _operator(args, source, fps):
             partial(
                 figures.plot_adaptation, title=title, curve_log10_luminance=op.CURVE_LOG10_LUMINANCE
             ),
-            False,
         )
     if op is jacobs2015:
         title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
         params = op.Params(pixels_per_degree=ppd, afterimage_blur=op.blur_for_display(ppd, fps))
         notes = op.diagnostics_notes(params)
         plot = partial(figures.plot_columns, title=title, units=op.DIAGNOSTIC_UNITS, notes=notes)
-        return op, params, plot, True
+        return op, params, plot
     params = classic.Params(
         classic.TONE_CURVES[args.operator](),
         args.background,
@@ -196,7 +197,7 @@ def _operator(args, source, fps):
     )
     title = f"{source.name}: {args.operator}, {args.background} background"
     plot = partial(figures.plot_columns, title=title, units=classic.DIAGNOSTIC_UNITS)
-    return classic, params, plot, False
+    return classic, params, plot
 
 
 def render(args, console):
@@ -212,7 +213,10 @@ def render(args, console):
         _replay.render(args, console)
         return
     source, formats, fps = _prepared(args, console)
-    op, params, plot, encoded = _operator(args, source, fps)
+    from jaxadapt.operators import OPERATORS
+
+    op, params, plot = _operator(args, source, fps)
+    encoded = OPERATORS.supports(args.operator).display_encoded
     # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
     encoding = "gamma" if encoded else args.encoding or "srgb"
     out, T, tables = args.out, len(source.times), []

@@ -49,18 +49,17 @@ def add_parser(sub):
 
 def _input_options():
     """The options of the input, the operator and its effects."""
-    from jaxadapt.operators.jacobs2015 import EFFECTS
     from jaxadapt.scenes import SCENES
     from jaxadapt.viewer import DEFAULT_SCENE, DEFAULT_SIZE
-    from jaxadapt.viewer._session import VIEW_OPERATORS
+    from jaxadapt.viewer._session import DEFAULT_OPERATOR, EFFECTS, VIEW_OPERATORS
 
     return (
         (("files",), dict(nargs="*", metavar="FILE", help="HDR input (EXR, HDR, PFM, float "
             "TIFF): one image, or a sequence played in a loop")),
         (("--scene",), dict(choices=sorted(SCENES), default=None, help="built-in scene when "
             f"no FILE is given (default: {DEFAULT_SCENE})")),
-        (("--operator",), dict(choices=VIEW_OPERATORS, default="jacobs2015",
-            help="the operator (default: jacobs2015)")),
+        (("--operator",), dict(choices=VIEW_OPERATORS, default=DEFAULT_OPERATOR,
+            help=f"the operator (default: {DEFAULT_OPERATOR})")),
         (("--size",), dict(type=_size, default=DEFAULT_SIZE, metavar="WxH", help="largest "
             "frame size rendered (default: {}x{}, which keeps 30 frames/s with jacobs2015 on "
             "a 2-core CPU); FILEs are shrunk to fit, aspect kept".format(*DEFAULT_SIZE))),
@@ -100,11 +99,17 @@ def _spec(args):
         raise UsageError("--scene: applies when no FILE is given")
     if not args.files and args.fps is not None:
         raise UsageError("--fps: applies to FILE input, not to a built-in scene")
-    if args.operator != "jacobs2015":
-        for option, value in (("--seed", args.seed), ("--off", args.off)):
-            if value:
-                raise UsageError(f"{option}: applies to --operator jacobs2015, not {args.operator}")
-    from jaxadapt.operators.jacobs2015 import EFFECTS
+    from jaxadapt.operators import OPERATORS
+    from jaxadapt.viewer._session import VIEW_OPERATORS
+
+    supports = OPERATORS.supports(args.operator)
+    for option, value, capability in (
+        ("--seed", args.seed, "seed"),
+        ("--off", args.off, "effects"),
+    ):
+        if value and not getattr(supports, capability):
+            having = ", ".join(n for n in OPERATORS.having(capability) if n in VIEW_OPERATORS)
+            raise UsageError(f"{option}: applies to --operator {having}, not {args.operator}")
 
     spec = {
         "operator": args.operator,
@@ -123,8 +128,8 @@ def _spec(args):
         spec["scene"] = args.scene or DEFAULT_SCENE
     if args.pixels_per_degree is not None:
         spec["pixels_per_degree"] = args.pixels_per_degree
-    if args.operator == "jacobs2015":
-        spec["effects"] = [e for e in EFFECTS if e not in args.off]
+    if supports.effects:
+        spec["effects"] = [e for e in supports.effects if e not in args.off]
     return spec
 
 

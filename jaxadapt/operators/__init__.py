@@ -17,12 +17,13 @@ alike. :data:`OPERATORS` maps the operators' names to their modules,
 importing a module only when it is asked for.
 """
 
+import dataclasses
 import importlib
 from collections.abc import Iterator, Mapping
 from types import ModuleType
 from typing import Any, Protocol, runtime_checkable
 
-__all__ = ["OPERATORS", "TONE_CURVE_NAMES", "Operator"]
+__all__ = ["OPERATORS", "TONE_CURVE_NAMES", "Operator", "Supports"]
 
 #: Names of the static tone curves of :mod:`~jaxadapt.operators.classic`
 #: (its ``TONE_CURVES``), each an operator of its own for the command line.
@@ -39,7 +40,8 @@ class Operator(Protocol):
     per-frame record of :meth:`run`, a ``NamedTuple`` with at least ``t``
     (s, from 0) and ``final_state``. Frames are ``(..., H, W, 3)`` linear
     BT.709 RGB in cd/m2; ``dt`` in s; ``gaze`` ``(x, y)`` in pixels; ``key``
-    a JAX PRNG key for operators that draw noise.
+    a JAX PRNG key for operators that draw noise. What an operator
+    supports beyond this is data in the registry (:class:`Supports`).
     """
 
     Params: type
@@ -63,31 +65,120 @@ class Operator(Protocol):
         of :meth:`diagnostics_table`: what a contact sheet follows."""
 
 
-class _Registry(Mapping):
-    """Names to operator modules, each imported when first asked for."""
+@dataclasses.dataclass(frozen=True)
+class Supports:
+    """What an operator supports, as data: the command line, the viewer and
+    whatever drives an operator read it here rather than test its name.
 
-    def __init__(self, modules):
-        self._modules = dict(modules)
+    Attributes
+    ----------
+    time_dependent : bool
+        It adapts over time: a state carried from frame to frame (False for
+        a static tone curve).
+    gaze : bool
+        It reads a gaze point per frame (``--gaze``, the viewer's pointer).
+    adaptation_goal : bool
+        It takes an adaptation goal (``--adaptation-goal``).
+    local_background : bool
+        It takes a background estimator other than the global one
+        (``--background``).
+    display_encoded : bool
+        Its frames come display-encoded by its own transfer (a gamma 2.2
+        encoding), so a display encoding (``--encoding``) does not apply.
+    seed : bool
+        It draws noise from a PRNG key (``--seed``).
+    effects : tuple of str
+        Parts that can be switched on and off (the viewer's toggles).
+    live : bool
+        It can be stepped frame by frame at the wall clock's ``dt`` with a
+        gaze (``jaxadapt view``).
+    composable : bool
+        Its state update is affine in the state for a fixed input frame, so
+        a sequence can be split in time and the pieces joined exactly.
+    why_not : dict
+        For an option it does not take, why, where its name is not enough
+        (the option's name without dashes to the reason, a clause).
+    """
+
+    time_dependent: bool = True
+    gaze: bool = False
+    adaptation_goal: bool = False
+    local_background: bool = True
+    display_encoded: bool = False
+    seed: bool = False
+    effects: tuple = ()
+    live: bool = False
+    composable: bool = True
+    why_not: dict = dataclasses.field(default_factory=dict)
+
+
+class _Registry(Mapping):
+    """Names to operator modules, each imported when first asked for, and
+    what each supports (:meth:`supports`), known without importing it."""
+
+    def __init__(self, entries):
+        self._entries = dict(entries)
 
     def __getitem__(self, name) -> ModuleType:
-        return importlib.import_module(f"{__name__}.{self._modules[name]}")
+        return importlib.import_module(f"{__name__}.{self._entries[name][0]}")
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._modules)
+        return iter(self._entries)
 
     def __len__(self) -> int:
-        return len(self._modules)
+        return len(self._entries)
 
     def __repr__(self):
-        return f"OPERATORS({', '.join(self._modules)})"
+        return f"OPERATORS({', '.join(self._entries)})"
+
+    def supports(self, name) -> Supports:
+        """What the operator ``name`` supports."""
+        return self._entries[name][1]
+
+    def having(self, capability) -> list:
+        """The names of the operators that support ``capability`` (a field
+        of :class:`Supports`: true, or not empty), in the registry's order."""
+        return [n for n, (_, s) in self._entries.items() if getattr(s, capability)]
 
 
 #: The operators by name: the two time-dependent models and each tone curve
-#: (whose module is :mod:`~jaxadapt.operators.classic`).
+#: (whose module is :mod:`~jaxadapt.operators.classic`), with what each supports.
 OPERATORS = _Registry(
     {
-        "pattanaik2000": "pattanaik2000",
-        "jacobs2015": "jacobs2015",
-        **dict.fromkeys(TONE_CURVE_NAMES, "classic"),
+        # Time-dependent adaptation (Pattanaik et al. 2000): its four state
+        # scalars advance by exact steps x' = a x + b, affine for a held frame.
+        "pattanaik2000": (
+            "pattanaik2000",
+            Supports(gaze=True, adaptation_goal=True, live=True),
+        ),
+        # Gaze-driven adaptation with afterimages (Jacobs et al. 2015): its
+        # adaptation level moves at a rate that depends on the sign of its
+        # distance to the target (Eq 3), not affine in the state.
+        "jacobs2015": (
+            "jacobs2015",
+            Supports(
+                gaze=True,
+                local_background=False,
+                display_encoded=True,
+                seed=True,
+                effects=(
+                    "bleaching",
+                    "local_adaptation",
+                    "purkinje",
+                    "mesopic_colour",
+                    "acuity",
+                    "dithering",
+                ),
+                live=True,
+                composable=False,
+                why_not={
+                    "background": "which adapts to the foveal luminance and finds local "
+                    "luminance itself",
+                    "encoding": "whose display values are its own gamma encoding",
+                },
+            ),
+        ),
+        # The static tone curves: no state, each frame mapped on its own.
+        **dict.fromkeys(TONE_CURVE_NAMES, ("classic", Supports(time_dependent=False))),
     }
 )

@@ -19,6 +19,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxadapt.operators import OPERATORS
+
 #: Frame size ``(W, H)`` the viewer renders at by default, pixels: the
 #: largest 16:9 size at which jacobs2015 keeps 30 frames/s on a 2-core CPU
 #: with the browser beside it (``benchmarks/bench_viewer.py``).
@@ -36,7 +38,11 @@ FRAME_CACHE_BYTES = 256 * 2**20
 #: The columns of ``frames.csv`` in a record.
 FRAME_COLUMNS = ("frame", "t", "dt", "x", "y", "scene_index", "effects", "reset", "digest")
 #: The operators the viewer runs: those with a per-frame ``step`` that takes the gaze.
-VIEW_OPERATORS = ("jacobs2015", "pattanaik2000")
+VIEW_OPERATORS = tuple(sorted(OPERATORS.having("live")))
+#: The operator of a session whose spec names none.
+DEFAULT_OPERATOR = "jacobs2015"
+#: Every effect a viewed operator can switch (a record's rows name them).
+EFFECTS = tuple(dict.fromkeys(e for n in VIEW_OPERATORS for e in OPERATORS.supports(n).effects))
 
 
 class Frame(NamedTuple):
@@ -86,10 +92,9 @@ def check_spec(spec):
     may have been edited by hand). The names come from the registries of
     scenes, operators and effects."""
     from jaxadapt._checks import check_value, check_whole
-    from jaxadapt.operators.jacobs2015 import EFFECTS
     from jaxadapt.scenes import SCENES
 
-    _check_choice("operator", spec.get("operator", "jacobs2015"), VIEW_OPERATORS)
+    _check_choice("operator", spec.get("operator", DEFAULT_OPERATOR), VIEW_OPERATORS)
     size = spec.get("size")
     if not (isinstance(size, (list, tuple)) and len(size) == 2):
         raise ValueError(f"size: expected [width, height] in pixels, got {size!r}")
@@ -171,12 +176,10 @@ class Session:
     def __init__(self, spec):
         import jax
 
-        from jaxadapt.operators import OPERATORS, jacobs2015
-
         check_spec(spec)
         self.spec = dict(spec)
-        self.operator = self.spec.setdefault("operator", "jacobs2015")
-        self.op = OPERATORS[self.operator]
+        self.operator = self.spec.setdefault("operator", DEFAULT_OPERATOR)
+        self.op, self.supports = OPERATORS[self.operator], OPERATORS.supports(self.operator)
         self.source, ppd = open_source(self.spec)
         self._cache = OrderedDict()
         self.spec.setdefault("pixels_per_degree", ppd)
@@ -185,8 +188,8 @@ class Session:
         self.period = float(self.source.times[-1] + self.source.dt[-1])
         self.key = jax.random.key(self.spec["seed"])
         self._params = {}
-        if self.op is jacobs2015:
-            self.effects = set(self.spec.setdefault("effects", list(jacobs2015.EFFECTS)))
+        if self.available_effects:
+            self.effects = set(self.spec.setdefault("effects", list(self.available_effects)))
         else:
             self.effects = set()
             self.spec["effects"] = []
@@ -197,9 +200,7 @@ class Session:
     @property
     def available_effects(self):
         """The effects this operator can switch (none for pattanaik2000)."""
-        from jaxadapt.operators import jacobs2015
-
-        return jacobs2015.EFFECTS if self.op is jacobs2015 else ()
+        return self.supports.effects
 
     def params(self):
         """The operator's :class:`Params` for the effects now on (cached:
@@ -301,7 +302,7 @@ class Session:
     def _pixels(self, out):
         from jaxadapt import display
 
-        if self.available_effects:  # jacobs2015: display-encoded (and dithered) J
+        if self.supports.display_encoded:  # (jacobs2015: its J, dithered)
             return display.to_uint8(out)
         return display.encode_uint8(out, "srgb")
 
@@ -460,7 +461,6 @@ def read_record(path):
 def _frame_row(cells):
     """A row of ``frames.csv`` (its cells) as a dict of values, checked."""
     from jaxadapt._checks import check_value, check_whole
-    from jaxadapt.operators.jacobs2015 import EFFECTS
 
     if len(cells) != len(FRAME_COLUMNS):
         raise ValueError(f"expected {len(FRAME_COLUMNS)} cells, got {len(cells)}")

@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxadapt._checks import check_value, float_array
 from jaxadapt.color import W_PHOTOPIC, W_SCOTOPIC
+from jaxadapt.operators import OPERATORS
 from jaxadapt.operators.checks import check_fields
 
 #: Appendix A: LMS bleaching deviations to RGB afterimage colour.
@@ -262,8 +263,9 @@ POSITIVE_FIELDS = (
 #: afterimage strengths and the acuity noise's spread).
 NON_NEGATIVE_FIELDS = ("j1", "j2", "g")
 
-#: The effects that :class:`Params` can switch off, in the pipeline's order.
-EFFECTS = ("bleaching", "local_adaptation", "purkinje", "mesopic_colour", "acuity", "dithering")
+#: The effects that :class:`Params` can switch off, in the pipeline's order
+#: (the registry's, :data:`jaxadapt.operators.OPERATORS`).
+EFFECTS = OPERATORS.supports("jacobs2015").effects
 
 
 def only(*effects, **fields):
