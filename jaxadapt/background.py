@@ -32,6 +32,16 @@ from jaxadapt.spatial import (
 #: all-black frames count as this luminance, so their goal is finite.
 LUMINANCE_FLOOR = 1e-6
 
+#: Ceiling of the luminance the operators see, cd/m2: a hundred times the top
+#: of the range of vision the models are built for (1e8 cd/m2, Pattanaik et
+#: al. 2000, §1), six times the sun's disc (1.6e9 cd/m2). A channel brighter
+#: than it counts as this level
+#: (:func:`jaxadapt.operators.checks.saturate`): the models have saturated
+#: long before (the cone pigment is 99.98 % bleached, Eq 6), and below it
+#: every product and sum of the operators stays far inside float32's range,
+#: whatever order XLA evaluates them in.
+LUMINANCE_CEILING = 1e10
+
 
 def log_average(L, floor=LUMINANCE_FLOOR):
     """Geometric mean luminance ``exp(mean(ln max(L, floor)))`` over ``(H, W)``.
