@@ -151,3 +151,31 @@ def test_render_of_extreme_frames_exits_0_with_finite_frames(operator, tmp_path,
     for i in range(2):
         frame = io.read_hdr(out / f"frame_{i:05d}.exr")
         assert np.isfinite(frame).all() and frame.min() >= 0 and frame.max() <= 1
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_files_whose_values_leave_float32_when_read_are_clipped(tmp_path):
+    # ACES primaries turn a legal 3e38 red into BT.709 5e38, and a PFM's
+    # scale of 2 doubles 3e38: NumPy's overflow warning, then an infinity
+    # that the operators refused as if the file held one.
+    import OpenImageIO as oiio
+
+    img = np.full((4, 6, 3), 1.0, np.float32)
+    img[0, 0] = (3.0e38, 0.0, 0.0)
+    img[1, 1] = np.inf  # the file's own infinity stays one
+    spec = oiio.ImageSpec(6, 4, 3, "float")
+    aces = (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.077, 0.32168, 0.33767)
+    spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), aces)
+    path = str(tmp_path / "aces.exr")
+    out = oiio.ImageOutput.create(path)
+    out.open(path, spec)
+    out.write_image(img)
+    out.close()
+    got = io.read_hdr(path)
+    np.testing.assert_array_equal(got[0, 0], [F32_MAX, 0.0, 0.0])
+    assert (
+        not np.isfinite(got[1, 1]).any() and np.isfinite(np.delete(got.reshape(-1, 3), 7, 0)).all()
+    )
+    pfm = tmp_path / "scaled.pfm"
+    pfm.write_bytes(b"PF\n2 1\n-2.0\n" + np.array([[3e38] * 3, [1.0] * 3], "<f4").tobytes())
+    np.testing.assert_array_equal(io.read_hdr(pfm)[0], [[F32_MAX] * 3, [2.0] * 3])
