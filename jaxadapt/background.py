@@ -105,12 +105,25 @@ def arithmetic_average(L):
     array, shape (...)
         Mean, cd/m2.
 
+    Notes
+    -----
+    A float32 sum of luminances near float32's largest value (3.4e38)
+    overflows although their mean does not; there the mean is taken of
+    the image scaled by ``2^-32`` (exact above 1e-28 cd/m2, and no sum
+    of up to ``2^32`` pixels overflows), then scaled back. A division by
+    the largest value would not do: XLA's CPU backend divides by
+    multiplying with the reciprocal, a denormal that it flushes to 0
+    above 8.5e37. Elsewhere it is the plain mean, bit for bit.
+
     Examples
     --------
     >>> float(arithmetic_average(jnp.array([[1.0, 100.0]])))
     50.5
     """
-    return jnp.mean(L, axis=(-2, -1))
+    mean = jnp.mean(L, axis=(-2, -1))
+    scale = jnp.asarray(2.0**32, mean.dtype)
+    scaled = jnp.mean(L * (1.0 / scale), axis=(-2, -1)) * scale
+    return jnp.where(jnp.isfinite(mean), mean, scaled)
 
 
 @eqx.filter_jit
