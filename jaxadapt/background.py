@@ -32,6 +32,16 @@ from jaxadapt.spatial import (
 #: all-black frames count as this luminance, so their goal is finite.
 LUMINANCE_FLOOR = 1e-6
 
+#: Ceiling of the luminance the operators see, cd/m2: a hundred times the top
+#: of the range of vision the models are built for (1e8 cd/m2, Pattanaik et
+#: al. 2000, §1), six times the sun's disc (1.6e9 cd/m2). A channel brighter
+#: than it counts as this level
+#: (:func:`jaxadapt.operators.checks.saturate`): the models have saturated
+#: long before (the cone pigment is 99.98 % bleached, Eq 6), and below it
+#: every product and sum of the operators stays far inside float32's range,
+#: whatever order XLA evaluates them in.
+LUMINANCE_CEILING = 1e10
+
 
 def log_average(L, floor=LUMINANCE_FLOOR):
     """Geometric mean luminance ``exp(mean(ln max(L, floor)))`` over ``(H, W)``.
@@ -95,12 +105,25 @@ def arithmetic_average(L):
     array, shape (...)
         Mean, cd/m2.
 
+    Notes
+    -----
+    A float32 sum of luminances near float32's largest value (3.4e38)
+    overflows although their mean does not; there the mean is taken of
+    the image scaled by ``2^-32`` (exact above 1e-28 cd/m2, and no sum
+    of up to ``2^32`` pixels overflows), then scaled back. A division by
+    the largest value would not do: XLA's CPU backend divides by
+    multiplying with the reciprocal, a denormal that it flushes to 0
+    above 8.5e37. Elsewhere it is the plain mean, bit for bit.
+
     Examples
     --------
     >>> float(arithmetic_average(jnp.array([[1.0, 100.0]])))
     50.5
     """
-    return jnp.mean(L, axis=(-2, -1))
+    mean = jnp.mean(L, axis=(-2, -1))
+    scale = jnp.asarray(2.0**32, mean.dtype)
+    scaled = jnp.mean(L * (1.0 / scale), axis=(-2, -1)) * scale
+    return jnp.where(jnp.isfinite(mean), mean, scaled)
 
 
 @eqx.filter_jit

@@ -408,10 +408,23 @@ def box_filter(image, radius):
     image = as_image(image)
     r = check_whole("radius", radius, unit="pixels")
     w = 2 * r + 1
+    down, up = _headroom(w * w, image.dtype)
+    image = image * down
     for axis in (image.ndim - 2, image.ndim - 1):  # one axis extended at a time
         extended = jnp.take(image, _reflect_indices(image.shape[axis], r), axis=axis)
         image = _window_sums(extended, w, axis)
-    return image / jnp.asarray(w * w, image.dtype)
+    return image / jnp.asarray(w * w, image.dtype) * up
+
+
+def _headroom(count, dtype):
+    """``(2^-k, 2^k)`` with ``2^k >= count``: the factors by which a sum of
+    ``count`` values is taken and its mean given back, so that the sum of
+    values near the dtype's largest (float32's 3.4e38) does not overflow.
+    A power of two scales exactly (down to values of 2^k times the
+    smallest normal, 1e-38 in float32), so the mean is the unscaled one's,
+    bit for bit."""
+    k = max(int(count) - 1, 0).bit_length()
+    return jnp.asarray(2.0**-k, dtype), jnp.asarray(2.0**k, dtype)
 
 
 def iterated_box_filter(image, radius, passes=3):
@@ -606,6 +619,8 @@ def bilateral_filter(
     padded_values, padded_guide = _reflect_pad(values, R), _reflect_pad(guide, R)
     rows, cols = np.nonzero(window)
     taps = (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(window[rows, cols], image.dtype))
+    down, up = _headroom(rows.size, image.dtype)  # the sum of every tap's value
+    padded_values = padded_values * down
 
     def accumulate(carry, tap):
         num, den = carry
@@ -617,4 +632,4 @@ def bilateral_filter(
 
     zeros = jnp.zeros_like(values)
     (num, den), _ = jax.lax.scan(accumulate, (zeros, zeros), taps)
-    return (num / den).reshape(shape)
+    return (num / den * up).reshape(shape)

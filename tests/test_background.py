@@ -181,6 +181,29 @@ def test_global_estimators():
     assert bg.arithmetic_average(L).shape == ()
 
 
+@pytest.mark.parametrize("name", list(bg.BACKGROUNDS))
+def test_every_estimator_of_float32_s_largest_values_is_finite(name):
+    # The box sums (box, adaptive, multiscale) and the bilateral sum of a
+    # window of 3e38 luminances overflowed: infinite backgrounds.
+    L = np.full((6, 8), 3.0e38, np.float32)
+    L[2:4, 2:4] = 1.0
+    estimate = np.asarray(bg.estimate_background(jnp.asarray(L), name, 2.0))
+    assert estimate.dtype == np.float32 and np.isfinite(estimate).all()
+    uniform = bg.estimate_background(jnp.full((6, 8), 3.0e38, jnp.float32), name, 2.0)
+    np.testing.assert_allclose(uniform, 3.0e38, rtol=1e-5)
+
+
+def test_arithmetic_average_of_float32_s_largest_values_is_finite():
+    # The float32 sum of 3e38 and 3.4e38 overflowed: an infinite background.
+    L = jnp.asarray([[3.0e38, 3.4e38], [0.0, 1.0]], jnp.float32)
+    np.testing.assert_allclose(bg.arithmetic_average(L), (3.0e38 + 3.4e38) / 4, rtol=1e-6)
+    assert bg.arithmetic_average(L).dtype == jnp.float32
+    black = jnp.zeros((2, 2), jnp.float32)
+    assert float(bg.arithmetic_average(black)) == 0.0
+    grad = jax.grad(bg.arithmetic_average)(black)
+    np.testing.assert_array_equal(grad, 0.25)
+
+
 def test_zero_and_negative_luminance_use_the_documented_floor():
     L = jnp.asarray([[0.0, -5.0], [0.0, 0.0]])
     np.testing.assert_allclose(bg.global_background(L), bg.LUMINANCE_FLOOR)

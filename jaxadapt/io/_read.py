@@ -62,7 +62,7 @@ def read_hdr(path):
         pixels = pixels[..., header.channels]
     pixels = display_window(pixels, spec)
     if header.exposure != 1:
-        pixels = pixels / np.float32(header.exposure)
+        pixels = _within_float32(pixels, lambda x: x / np.float32(header.exposure))
     if header.to_bt709 is not None:
         pixels = to_bt709_gamut(pixels, header.to_bt709)
     return np.ascontiguousarray(reorient(pixels, header.orientation))
@@ -118,7 +118,9 @@ def _read_pfm(path):
     dtype = "<f4" if scale < 0 else ">f4"
     rows = np.fromfile(path, dtype, count=H * W * C, offset=match.end()).reshape(H, W, C)
     pixels = rows[::-1].astype(np.float32)  # top row first, native byte order
-    return pixels if abs(scale) == 1 else pixels * np.float32(abs(scale))
+    return (
+        pixels if abs(scale) == 1 else _within_float32(pixels, lambda x: x * np.float32(abs(scale)))
+    )
 
 
 def to_bt709_gamut(rgb, matrix):
@@ -132,10 +134,32 @@ def to_bt709_gamut(rgb, matrix):
     roughly and adds a little light: ACEScg (100, 0, 0) is BT.709 (170.5,
     -13.0, -2.4), clipped (170.5, 0, 0). A pixel the file itself holds
     negative or NaN is left as converted, for the caller's check to refuse.
+    A finite colour that converts beyond float32's range is clipped to its
+    largest value (:func:`_within_float32`).
     """
-    converted = rgb @ matrix.T.astype(rgb.dtype)
+    converted = _within_float32(rgb, lambda x: x @ matrix.T.astype(x.dtype), per_pixel=True)
     valid = np.all(rgb >= 0, axis=-1, keepdims=True)
     return np.where(valid, np.maximum(converted, 0), converted)
+
+
+def _within_float32(values, fn, per_pixel=False):
+    """``fn(values)`` (a scaling or a colour matrix), with the finite values
+    it takes beyond float32's range (a legal 3.4e38 converted from ACES
+    primaries, or divided by an exposure below 1) clipped to float32's
+    largest, where the operators' luminance ceiling has long saturated
+    them, instead of a NumPy overflow warning and an infinity that would be
+    refused as if the file held one. What ``fn`` gives of a non-finite
+    input (per value, or with ``per_pixel`` per pixel ``(..., 3)``) is kept
+    as it is, for the caller's check to refuse."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = fn(values)
+    finite = np.isfinite(values)
+    if per_pixel:
+        finite = np.all(finite, axis=-1, keepdims=True)
+    largest = np.finfo(np.float32).max
+    if np.isfinite(out).all() or not finite.any():
+        return out
+    return np.where(finite, np.clip(out, -largest, largest), out)
 
 
 def hdr_size(path):

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt._checks import check_value
+from jaxadapt.background import LUMINANCE_CEILING
 
 
 def check_frames(frames, rank, name="frames", on_host=False):
@@ -36,6 +37,30 @@ def check_frames(frames, rank, name="frames", on_host=False):
     """
     dtype = _frames_dtype(frames, rank, name)
     return value_check(dtype, [_bad_frames(frames)], frames_messages(name), on_host)
+
+
+def saturate(rgb):
+    """Linear RGB ``(..., 3)`` (cd/m2) with every channel above
+    :data:`~jaxadapt.background.LUMINANCE_CEILING` clipped to it: what the
+    operators see of a frame.
+
+    Frames may hold any finite value, up to float32's largest (3.4e38), and
+    the models saturate far below the ceiling; above it, the luminance
+    weights alone (a sum of three products) can overflow, and so can the
+    operators' ratios, which XLA may reassociate (``(x / y) / L`` into ``x
+    / (y L)``). Values at or below the ceiling are returned exactly. A
+    clip per channel, as a sensor saturates, costs one operation a value;
+    scaling the pixel to keep its colour would cost a division a pixel in
+    every frame, for colours that only frames beyond any scene's luminance
+    hold.
+    """
+    rgb = jnp.asarray(rgb)
+    return jnp.minimum(rgb, jnp.asarray(LUMINANCE_CEILING, rgb.dtype))
+
+
+def saturate_planes(channels):
+    """:func:`saturate` of channel planes ``[r, g, b]`` (a fused kernel's form)."""
+    return [jnp.minimum(c, jnp.asarray(LUMINANCE_CEILING, c.dtype)) for c in channels]
 
 
 def frames_messages(name="frames"):

@@ -30,6 +30,7 @@ import numpy as np
 
 from jaxadapt._checks import check_value, float_array
 from jaxadapt.background import (
+    LUMINANCE_CEILING,
     LUMINANCE_FLOOR,
     check_background,
     estimate_background,
@@ -45,6 +46,7 @@ from jaxadapt.operators.checks import (
     is_traced,
     plain_errors,
     raise_verdict,
+    saturate,
 )
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.physiology.threshold import TVI_MODELS
@@ -381,6 +383,7 @@ def _background(L, background):
             ) from None
         bad = ~jnp.all(jnp.isfinite(I_b) & (I_b >= 0))
         I_b = eqx.error_if(I_b, bad, "background: expected finite, non-negative luminance (cd/m2)")
+        I_b = jnp.minimum(I_b, LUMINANCE_CEILING)  # as the frame's luminance (saturate)
     try:
         fits = jnp.broadcast_shapes(I_b.shape, L.shape) == L.shape
     except ValueError:
@@ -414,7 +417,11 @@ def tone_map(params, frame, background=None):
         shows that luminance, not at 0: beside brighter pixels, near the
         curve's black level; a black frame, or a black region wider than a
         local background, as a grey at its own background (Photographic ``a
-        / (1 + a)``, Tumblin ``D / k``, Ward 0.5; Schlick's white).
+        / (1 + a)``, Tumblin ``D / k``, Ward 0.5; Schlick's white). A
+        channel above :data:`~jaxadapt.background.LUMINANCE_CEILING` (1e10
+        cd/m2) counts as the ceiling
+        (:func:`~jaxadapt.operators.checks.saturate`), and so does a given
+        background above it.
     background : None, array or callable
         Background luminance ``I_b``, cd/m2: ``None`` for the log average
         of each image (global), an array broadcastable to ``(..., H, W)``,
@@ -441,6 +448,9 @@ def tone_map(params, frame, background=None):
 def _tone_map_checked(params, frame, background):
     """:func:`tone_map` of a checked frame; returns the display frame and ``I_b``."""
     params = as_dtype(params, frame.dtype)
+    # Luminance between the floor and the ceiling, where every curve, ratio
+    # and background stays finite in float32 (saturate).
+    frame = saturate(frame)
     # A grey of the floor's luminance has that luminance: L needs no second pass.
     L = photopic_luminance(frame)
     dark = L < LUMINANCE_FLOOR

@@ -81,6 +81,12 @@ and tested in ``tests/test_jacobs2015.py``):
   tracker reports the viewer looking just off screen; the nearest pixel is
   the best estimate of the fixation on it); samples that are not finite
   (NaN) are blinks and hold the last fixation.
+* **Luminance ceiling**: a channel brighter than
+  :data:`jaxadapt.background.LUMINANCE_CEILING` (1e10 cd/m2) is seen at
+  that level (:func:`jaxadapt.operators.checks.saturate`), and so is an
+  ``init`` adaptation above it: the responses, bleaching and
+  adaptation level have saturated there, and above it the foveal mean of
+  frames near float32's largest value overflowed.
 
 References
 ----------

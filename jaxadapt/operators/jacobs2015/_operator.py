@@ -13,6 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxadapt.background import LUMINANCE_CEILING
 from jaxadapt.display import dither
 from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators.checks import (
@@ -26,6 +27,7 @@ from jaxadapt.operators.checks import (
     frames_messages,
     is_traced,
     raise_verdict,
+    saturate,
 )
 from jaxadapt.operators.jacobs2015._acuity import acuity_loss, acuity_noise, local_rho
 from jaxadapt.operators.jacobs2015._afterimage import (
@@ -102,6 +104,7 @@ def _frame(params, state, frame, dt, sample):
     display frame and the frame's record (:class:`Diagnostics` without
     ``final_state``). The whole operator is this map."""
     shape = frame.shape[:2]
+    frame = saturate(frame)
     gaze = fixation(sample, state.gaze, shape)
     sigma = semi_saturation(params, state.A)
     rec = receptors(params, frame, sigma)
@@ -147,11 +150,13 @@ def _frame(params, state, frame, dt, sample):
 
 def _initial_state(params, frame, gaze, key, adaptation=None):
     shape = frame.shape[:2]
+    frame = saturate(frame)
     gaze = fixation(gaze, frame_centre(shape, frame.dtype), shape)
     if adaptation is None:
         A = adaptation_target(params, frame, gaze)
     else:
-        A = jnp.log10(jnp.maximum(adaptation, params.adaptation_floor)).astype(frame.dtype)
+        adaptation = jnp.clip(adaptation, params.adaptation_floor, LUMINANCE_CEILING)
+        A = jnp.log10(adaptation).astype(frame.dtype)
     rec = receptors(params, frame, semi_saturation(params, A))
     zero = jnp.zeros((), frame.dtype)
     return State(A, rec.B_inf, rec.C_inf, gaze, zero, jnp.zeros((), jnp.int32), key)

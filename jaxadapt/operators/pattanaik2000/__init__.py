@@ -23,6 +23,12 @@ the lights come on is seen with the adaptation of the dark frame before it
 ("the lighting has changed, but the scene viewer's adaptation state has
 not"), and is almost entirely white.
 
+Luminance: frames may hold any finite value; a channel above
+:data:`jaxadapt.background.LUMINANCE_CEILING` (1e10 cd/m2, where the cone
+pigment is 99.98 % bleached) is seen, by the goals and by the pixel map
+alike, at the ceiling (:func:`jaxadapt.operators.checks.saturate`): above
+it Hunt's ``F_L`` of the goal and the responses' ratios overflow float32.
+
 References
 ----------
 Pattanaik, Tumblin, Yee, Greenberg (2000), *Time-Dependent Visual Adaptation

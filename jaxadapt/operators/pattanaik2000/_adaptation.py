@@ -11,6 +11,7 @@ Eq 6), and the exact steps of the kinetics: neural filters with ``t0``
 from jaxadapt import background
 from jaxadapt.color import photopic_luminance, scotopic_luminance
 from jaxadapt.operators import goal as goals
+from jaxadapt.operators.checks import saturate
 from jaxadapt.operators.pattanaik2000._params import State
 from jaxadapt.physiology import kinetics
 
@@ -34,6 +35,7 @@ def frame_goals(params, frame, gaze):
 
     # Two reductions of the frame's shape (not one of a stack): XLA fuses
     # them, and the frames' value check, into one read of the frames.
+    frame = saturate(frame)
     return goal(scotopic_luminance(frame)), goal(photopic_luminance(frame))
 
 

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxadapt import fused
+from jaxadapt.background import LUMINANCE_CEILING
 from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators import goal as goals
 from jaxadapt.operators.checks import (
@@ -80,7 +81,8 @@ def init(params, first_frame, *, gaze=None, key=None, adaptation=None):
         Adapt instead to this luminance (cd/m2) for rods and cones, e.g.
         0.01 for the moonlit start of the title-page sequence; at least
         ``goal.LUMINANCE_FLOOR`` (1e-6) counts, as for the goals of frames,
-        so that 0 is a fully dark-adapted viewer. With a local background
+        so that 0 is a fully dark-adapted viewer, and at most
+        ``background.LUMINANCE_CEILING`` (1e10). With a local background
         the state is then a uniform map, of ``first_frame``'s size.
 
     Returns
@@ -103,7 +105,7 @@ def _init(params, first_frame, gaze, adaptation, on_host):
         floating = first_frame is not None and jnp.issubdtype(first_frame.dtype, jnp.floating)
         dtype = first_frame.dtype if floating else jnp.result_type(float)
         check_adaptation(adaptation)
-        A = jnp.maximum(jnp.asarray(adaptation, dtype=dtype), goals.LUMINANCE_FLOOR)
+        A = jnp.clip(jnp.asarray(adaptation, dtype=dtype), goals.LUMINANCE_FLOOR, LUMINANCE_CEILING)
         if params.background != "global" and first_frame is not None:
             A = jnp.broadcast_to(A, first_frame.shape[:2])  # as run() carries it
         return static_state(as_dtype(params, dtype), A, A), None
