@@ -66,3 +66,30 @@ def test_a_commands_parser_declares_its_options_only():
             assert (name == command) == bool(declared), (command, name)
         if option:
             assert option in {s for a in sub.choices[command]._actions for s in a.option_strings}
+
+
+def test_the_viewer_needs_only_the_base_install():
+    # `pip install .` (the README's first command) brings everything that
+    # `jaxadapt view` imports: no extra to know of.
+    import ast
+    import re
+    from importlib.metadata import packages_distributions
+    from pathlib import Path
+
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    base = {re.split(r"[<>=!~;\[ ]", r)[0].lower() for r in project["dependencies"]}
+    distributions = packages_distributions()
+    imported = set()
+    for path in [*(root / "jaxadapt" / "viewer").glob("*.py"), root / "jaxadapt/cli/view.py"]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                imported.add(node.module.split(".")[0])
+    third_party = {m for m in imported if m in distributions and m != "jaxadapt"}
+    assert {"aiohttp", "PIL"} <= third_party
+    missing = {m for m in third_party if not {d.lower() for d in distributions[m]} & base}
+    assert not missing, missing
