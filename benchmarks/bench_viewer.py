@@ -141,7 +141,7 @@ def stages(size, operator, scene, frames=30):
     """Milliseconds a frame takes in this process, alone: the session's step
     (with its 8-bit frame and digest) and the JPEG encoding (medians)."""
     from jaxadapt.viewer import Session
-    from jaxadapt.viewer._server import encode_jpeg
+    from jaxadapt.viewer._simulation import encode_jpeg
 
     w, h = (int(v) for v in size.split("x"))
     session = Session({"scene": scene, "size": [w, h], "operator": operator})

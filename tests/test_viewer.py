@@ -443,9 +443,9 @@ def test_the_page_says_when_simulated_time_falls_behind(viewer, browser, monkeyp
     """Frames that take longer than MAX_DT to compute: the page says how
     slow simulated time runs and how far behind, and stops saying it once
     frames keep up again."""
-    from jaxadapt.viewer import _server
+    from jaxadapt.viewer import _simulation
 
-    monkeypatch.setattr(_server, "MAX_DT", 0.1)
+    monkeypatch.setattr(_simulation, "MAX_DT", 0.1)
     session, advance = viewer.server.session, viewer.server.session.advance
 
     def slow_advance(*args):

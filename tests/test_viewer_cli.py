@@ -28,12 +28,14 @@ from jaxadapt.viewer import (
     Recorder,
     Server,
     Session,
+    _messages,
     _server,
+    _simulation,
     read_record,
     replay,
 )
-from jaxadapt.viewer._server import Simulation
 from jaxadapt.viewer._session import FRAME_COLUMNS, open_source
+from jaxadapt.viewer._simulation import Simulation
 
 SMALL = {"scene": "flash", "size": [32, 24]}
 SMALL_ARGS = ["--scene", "flash", "--size", "32x24"]
@@ -401,7 +403,7 @@ def test_a_machine_too_slow_for_real_time_says_so_and_when_it_keeps_up(monkeypat
     MAX_DT only: from the second in a row, the frames' headers and the
     terminal (once) say how slow and how far behind; two frames in time
     clear it, and the terminal says so (once)."""
-    monkeypatch.setattr(_server, "MAX_DT", 0.1)
+    monkeypatch.setattr(_simulation, "MAX_DT", 0.1)
     session = Session(SMALL)
     session.warm()
     lines = []
@@ -549,7 +551,7 @@ def test_a_tracker_s_bad_lines_get_errors_and_its_warnings_a_rate(monkeypatch):
     off the frame gets one warning per interval, then one saying how many
     went unsaid, and a ``clear`` once the samples are on the frame again;
     the frame reaches the pixels' outer edges (-0.5 to W - 0.5)."""
-    monkeypatch.setattr(_server, "WARNING_INTERVAL", 0.3)
+    monkeypatch.setattr(_messages, "WARNING_INTERVAL", 0.3)
     replies = asyncio.run(_track(Session(SMALL)))
     too_long, nested, bad_id, first, flood_over, later, clear, edge = replies
     assert too_long == {
@@ -662,7 +664,7 @@ async def _watch(url, seconds):
 
 def test_frame_messages_carry_their_header():
     header = {"frame": 3, "gaze_id": 7}
-    message = _server.frame_message(header, b"\xff\xd8jpeg")
+    message = _messages.frame_message(header, b"\xff\xd8jpeg")
     length = int.from_bytes(message[:4], "big")
     assert (
         json.loads(message[4 : 4 + length]) == header and message[4 + length :] == b"\xff\xd8jpeg"

@@ -140,7 +140,7 @@ def view(args, console):
     import secrets
 
     from jaxadapt.viewer import Recorder, Session
-    from jaxadapt.viewer._server import is_loopback
+    from jaxadapt.viewer._addresses import is_loopback
 
     spec = _spec(args)
     if args.record is not None:

@@ -9,7 +9,8 @@ course at any frame rate; a recorded session replays exactly
 (:func:`replay`).
 """
 
-from jaxadapt.viewer._server import Server, parse_gaze
+from jaxadapt.viewer._messages import parse_gaze
+from jaxadapt.viewer._server import Server
 from jaxadapt.viewer._session import (
     DEFAULT_SCENE,
     DEFAULT_SIZE,
