@@ -521,5 +521,13 @@ def test_screenshot(browser, tmp_path):
         _point_scaled(browser, 287.5, 107.5, *size)  # the field's
         time.sleep(0.5)
         browser.save_screenshot(os.environ["JAXADAPT_SCREENSHOT"])
+        shown = _canvas(browser).astype(float).mean(axis=-1)
     finally:
         close()
+    # The field shows the board's negative where the board's image fell on
+    # the retina (shifted with the gaze by the board's width): light where a
+    # square was dark, a faint modulation (the fixation mark left out).
+    board, field = shown[:, : size[0] // 2], shown[:, size[0] // 2 :]
+    on_field = (field > 50) & (field < 150)
+    assert np.corrcoef(board[on_field], field[on_field])[0, 1] < -0.5
+    assert 1.0 < field[on_field].std() < 20.0
