@@ -27,6 +27,28 @@ from jaxadapt.spatial import (
     plane_sum,
 )
 
+__all__ = [
+    "LUMINANCE_FLOOR",
+    "LUMINANCE_CEILING",
+    "log_average",
+    "check_scale",
+    "box_radius",
+    "arithmetic_average",
+    "global_background",
+    "arithmetic_background",
+    "box_background",
+    "gaussian_background",
+    "BILATERAL_KINDS",
+    "bilateral_background",
+    "octave_radii",
+    "adaptive_background",
+    "multiscale_background",
+    "BACKGROUNDS",
+    "BOX_SIZED",
+    "check_background",
+    "estimate_background",
+]
+
 #: Floor applied before taking logarithms, cd/m2: the bottom of the range of
 #: human vision (1e-6 cd/m2, Pattanaik et al. 2000, §1). Black pixels and
 #: all-black frames count as this luminance, so their goal is finite.

@@ -13,6 +13,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = [
+    "BT709_CHROMATICITIES",
+    "RGB709_TO_XYZ",
+    "W_PHOTOPIC",
+    "W_SCOTOPIC",
+    "SP_RATIO_D65",
+    "XYZ_TO_HPE",
+    "RGB_TO_LMS",
+    "LMS_TO_RGB",
+    "transform",
+    "combine",
+    "photopic_luminance",
+    "scotopic_luminance",
+]
+
 #: Chromaticities of ITU-R BT.709 (x, y of red, green, blue and the D65 white).
 BT709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 

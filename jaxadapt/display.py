@@ -10,6 +10,8 @@ import numpy as np
 from jaxadapt._checks import check_value
 from jaxadapt.physiology.response import power
 
+__all__ = ["encode_srgb", "encode_gamma", "ENCODINGS", "to_uint8", "encode_uint8", "dither"]
+
 
 def encode_srgb(v):
     """IEC 61966-2-1 sRGB encoding of linear values in [0, 1].

@@ -17,6 +17,20 @@ from matplotlib.figure import Figure
 
 from jaxadapt._checks import check_whole
 
+__all__ = [
+    "curve_frames",
+    "plot_adaptation",
+    "CONTACT_WIDTH",
+    "shrink",
+    "spread_frames",
+    "LABEL_HEIGHT",
+    "contact_sheet",
+    "plot_columns",
+    "MAX_PANELS",
+    "plot_psychometric",
+    "plot_pse",
+]
+
 
 def _marker(t):
     """A point marker for a time series of one frame, where a line draws nothing."""

@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
 
+__all__ = ["BLOCK", "map_pixels"]
+
 #: Pixels per program of the kernel: a power of two, as Triton requires;
 #: the fastest of the sizes tried.
 BLOCK = 512

@@ -13,6 +13,16 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = [
+    "frame_centre",
+    "fixation",
+    "fixate",
+    "saccade",
+    "read_gaze_csv",
+    "write_gaze_csv",
+    "recorded_gaze",
+]
+
 
 def frame_centre(shape, dtype=float):
     """The centre ``(x, y)``, pixels, of frames of shape ``(H, W)``: the default gaze."""

@@ -14,6 +14,8 @@ import numpy as np
 
 from jaxadapt.io import read_hdr, write_image
 
+__all__ = ["pfstmo_available", "pfstmo_pattanaik00"]
+
 
 def pfstmo_available():
     """Whether ``pfsin``, ``pfsout`` and ``pfstmo_pattanaik00`` are on the PATH."""

@@ -28,6 +28,26 @@ from jaxadapt import runtime
 from jaxadapt._checks import check_value, check_whole
 from jaxadapt.io import frame_rate, hdr_size, read_hdr
 
+__all__ = [
+    "FILE_PIXELS_PER_DEGREE",
+    "FILE_FPS",
+    "MEMORY_BUDGET",
+    "CHUNK_COPIES",
+    "MAX_CHUNK",
+    "chunk_size",
+    "Source",
+    "frame_shape",
+    "from_scene",
+    "files_rate",
+    "from_files",
+    "chunks",
+    "ahead",
+    "behind",
+    "concatenate",
+    "collect",
+    "with_gaze",
+]
+
 #: Pixels per degree assumed for files, whose viewing geometry is unknown:
 #: a 1920-pixel-wide frame seen across 64 degrees.
 FILE_PIXELS_PER_DEGREE = 30.0

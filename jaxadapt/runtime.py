@@ -29,6 +29,14 @@ import os
 import platform
 from pathlib import Path
 
+__all__ = [
+    "retain_freed_memory",
+    "release_freed_memory",
+    "resident_bytes",
+    "MemoryCeiling",
+    "cache_compilations",
+]
+
 #: ``mallopt`` parameters of glibc's ``<malloc.h>``.
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_MAX = -4

@@ -26,6 +26,25 @@ from jaxadapt._checks import check_value, check_whole
 from jaxadapt.color import RGB709_TO_XYZ
 from jaxadapt.gaze import fixate, saccade
 
+__all__ = [
+    "Scene",
+    "MAX_FRAMES",
+    "colorchecker_rgb",
+    "white_tile",
+    "colorchecker_image",
+    "title_step",
+    "tunnel_drive",
+    "SCENES",
+    "ROOM",
+    "OUTSIDE",
+    "FRAME",
+    "interior_with_window",
+    "flash",
+    "checkerboard",
+    "patches",
+    "mesopic",
+]
+
 
 class Scene(NamedTuple):
     """A calibrated frame sequence.

@@ -8,6 +8,26 @@ import numpy as np
 
 from jaxadapt._checks import check_value, check_whole
 
+__all__ = [
+    "FOVEA_DEG",
+    "plane_sum",
+    "foveal_weights",
+    "gaussian_kernel",
+    "discrete_gaussian_kernel",
+    "separable_filter",
+    "LONG_KERNEL",
+    "gaussian_blur",
+    "as_image",
+    "box_filter",
+    "iterated_box_filter",
+    "lowpass_stack",
+    "RANGE_KERNELS",
+    "gaussian_window",
+    "disc_window",
+    "SPATIAL_WINDOWS",
+    "bilateral_filter",
+]
+
 #: Full width at half maximum of the foveal weighting, degrees of visual angle.
 FOVEA_DEG = 1.0
 

@@ -5,8 +5,11 @@ signals first)."""
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
 
 PACKAGES = [
     "jaxadapt",
@@ -17,6 +20,18 @@ PACKAGES = [
     "jaxadapt.physiology",
     "jaxadapt.psychophysics",
 ]
+
+
+#: Every module whose path has no part with a leading underscore (a
+#: package's ``__init__`` standing for the package).
+PUBLIC_MODULES = sorted(
+    ".".join(parts)
+    for parts in (
+        p.relative_to(ROOT).with_suffix("").parts for p in (ROOT / "jaxadapt").rglob("*.py")
+    )
+    for parts in [parts[:-1] if parts[-1] == "__init__" else parts]
+    if not any(part.startswith("_") for part in parts)
+)
 
 
 @pytest.mark.parametrize("package", PACKAGES)
@@ -93,3 +108,38 @@ def test_the_viewer_needs_only_the_base_install():
     assert {"aiohttp", "PIL"} <= third_party
     missing = {m for m in third_party if not {d.lower() for d in distributions[m]} & base}
     assert not missing, missing
+
+
+@pytest.mark.parametrize("module", PUBLIC_MODULES)
+def test_a_public_module_lists_what_it_defines_in_all(module):
+    # One convention: a module without an underscore in its path names in
+    # __all__ everything it defines without a leading underscore, and any
+    # name it imports for its users (a package's __init__ re-exports only).
+    import ast
+
+    path = ROOT / Path(*module.split("."))
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    tree = ast.parse(path.read_text())
+    declared = next(
+        (
+            ast.literal_eval(node.value)
+            for node in tree.body
+            if isinstance(node, ast.Assign)
+            and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)
+        ),
+        None,
+    )
+    assert declared is not None, f"{module} has no __all__"
+    module_object = importlib.import_module(module)
+    assert all(hasattr(module_object, name) for name in declared), module
+    defined = set()
+    for node in tree.body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defined.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for target in targets:
+                for name in [target, *getattr(target, "elts", [])]:
+                    if isinstance(name, ast.Name):
+                        defined.add(name.id)
+    assert {n for n in defined if not n.startswith("_")} <= set(declared), module

@@ -10,6 +10,8 @@ from jaxadapt.cli._options import COMMANDS, UsageError, _folder, _seed
 from jaxadapt.cli._output import _report
 from jaxadapt.cli._staging import FIT_OUTPUTS, _staged
 
+__all__ = ["add_parser", "fit", "MAX_GROUP_WARNINGS", "simulate"]
+
 
 def add_parser(sub):
     """Declare ``jaxadapt psychometric fit`` and ``simulate`` on the subparsers ``sub``."""

@@ -21,6 +21,15 @@ from jaxadapt.cli._render_options import (
 )
 from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
+__all__ = [
+    "add_parser",
+    "CONTACT_FRAMES",
+    "CONTACT_CANDIDATES",
+    "BACKGROUND_SCALE",
+    "render",
+    "BLEACHED",
+]
+
 
 def add_parser(sub):
     """Declare ``jaxadapt render`` and its options on the subparsers ``sub``."""

@@ -16,6 +16,8 @@ from jaxadapt.cli._options import (
 )
 from jaxadapt.cli._output import _report
 
+__all__ = ["add_parser", "view"]
+
 
 def _port(text):
     try:

@@ -20,6 +20,26 @@ import numpy as np
 from jaxadapt._checks import check_value
 from jaxadapt.background import LUMINANCE_CEILING
 
+__all__ = [
+    "check_frames",
+    "saturate",
+    "saturate_planes",
+    "frames_messages",
+    "frames_and_dt_messages",
+    "check_frames_and_dt",
+    "is_traced",
+    "error_message",
+    "plain_errors",
+    "value_check",
+    "raise_verdict",
+    "check_rgb",
+    "check_one_parameter_set",
+    "check_state",
+    "as_dtype",
+    "check_fields",
+    "check_adaptation",
+]
+
 
 def check_frames(frames, rank, name="frames", on_host=False):
     """Check frames of linear RGB in cd/m2; return their value check

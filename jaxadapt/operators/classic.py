@@ -51,6 +51,34 @@ from jaxadapt.operators.checks import (
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.physiology.threshold import TVI_MODELS
 
+__all__ = [
+    "schlick_original",
+    "schlick_sigma",
+    "tumblin_original",
+    "tumblin_sigma",
+    "tumblin_rewritten",
+    "reinhard_devlin_sigma",
+    "photographic_original",
+    "photographic_sigma",
+    "jnd_count",
+    "ward_display_luminance",
+    "Schlick1994",
+    "Tumblin1999",
+    "ReinhardDevlin",
+    "Photographic",
+    "WardJND",
+    "TONE_CURVES",
+    "tone_map",
+    "Params",
+    "Diagnostics",
+    "init",
+    "step",
+    "run",
+    "DIAGNOSTIC_UNITS",
+    "diagnostics_table",
+    "log_adaptation",
+]
+
 
 def _positive(name, value):
     check_value(name, value, lambda v: np.isfinite(v) & (v > 0), "a positive finite value")

@@ -36,6 +36,33 @@ import diffrax
 import jax
 import jax.numpy as jnp
 
+__all__ = [
+    "Relaxation",
+    "relaxation_rhs",
+    "affine_step",
+    "relaxation_step",
+    "relaxation_sequence",
+    "SMALL_STATE",
+    "relaxation_sequences",
+    "neural",
+    "neural_rhs",
+    "neural_step",
+    "bleaching",
+    "bleaching_rhs",
+    "bleaching_step",
+    "goal_path",
+    "integrate",
+    "cone_bleaching",
+    "cone_bleaching_rhs",
+    "cone_bleaching_step",
+    "calcium",
+    "calcium_rhs",
+    "calcium_step",
+    "LOG_ADAPTATION_BAND",
+    "log_adaptation_step",
+    "log_adaptation_rhs",
+]
+
 
 class Relaxation(NamedTuple):
     """A first-order relaxation ``dy/dt = rate (target - y)``.

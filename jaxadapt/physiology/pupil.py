@@ -17,6 +17,14 @@ import jax.numpy as jnp
 
 from jaxadapt.physiology._inputs import array_like, nonnegative
 
+__all__ = [
+    "DE_GROOT_GEBHARD_DARK",
+    "diameter_moon_spencer",
+    "diameter_de_groot_gebhard",
+    "area",
+    "DIAMETERS",
+]
+
 #: Luminance of the de Groot and Gebhard formula's largest pupil,
 #: ``10^-8.6`` cd/m2 (where its cubic in log luminance has zero slope).
 DE_GROOT_GEBHARD_DARK = 10.0**-8.6

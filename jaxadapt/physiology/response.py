@@ -15,6 +15,23 @@ import jax.numpy as jnp
 
 from jaxadapt.physiology._inputs import array_like, nonnegative
 
+__all__ = [
+    "N_HUNT",
+    "power",
+    "naka_rushton",
+    "naka_rushton_inverse",
+    "log_naka_rushton_sum_inverse",
+    "naka_rushton_sum_inverse",
+    "response_slope",
+    "forward_difference_slope",
+    "hunt_F_L",
+    "hunt_F_LS",
+    "sigma_cone",
+    "sigma_rod",
+    "bleach_cone",
+    "bleach_rod",
+]
+
 #: Response exponent of Hunt's model (Pattanaik 2000, §4.1.1).
 N_HUNT = 0.73
 

@@ -19,6 +19,20 @@ from jaxadapt.physiology import pupil
 from jaxadapt.physiology._inputs import array_like, nonnegative
 from jaxadapt.physiology.response import N_HUNT, naka_rushton, power
 
+__all__ = [
+    "tvi_rod",
+    "tvi_cone",
+    "tvi_rod_cone",
+    "trolands",
+    "tvi_luminance",
+    "tvi_blackwell",
+    "TVI_MODELS",
+    "increment_threshold",
+    "increment_sensitivity",
+    "relative_threshold",
+    "relative_threshold_small_delta",
+]
+
 
 @array_like
 def tvi_rod(I_b):

@@ -36,6 +36,8 @@ from jaxadapt.psychophysics.psychometric import (
     sample_counts,
 )
 
+__all__ = ["METHODS", "Bootstrap", "FIT_BYTES", "BOOTSTRAP_BUDGET", "bootstrap_blocks", "bootstrap"]
+
 METHODS = ("parametric", "nonparametric")
 
 

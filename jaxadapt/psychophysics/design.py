@@ -27,6 +27,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = [
+    "Block",
+    "Protocol",
+    "AFTERIMAGE",
+    "MESOPIC",
+    "PROTOCOLS",
+    "Trials",
+    "trial_list",
+    "training_accuracy",
+    "excluded",
+    "counts",
+]
+
 
 class Block(eqx.Module):
     """A block of trials, shown in a random order.

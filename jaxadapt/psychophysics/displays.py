@@ -19,6 +19,8 @@ from jaxadapt import scenes
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators import jacobs2015
 
+__all__ = ["Displays", "afterimage_displays", "mesopic_displays", "DISPLAYS"]
+
 
 class Displays(NamedTuple):
     """Rendered stimuli as they are shown on the display.

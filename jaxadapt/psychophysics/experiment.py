@@ -29,6 +29,23 @@ from jaxadapt.psychophysics.observer import Observer, _checked, respond, true_ps
 from jaxadapt.psychophysics.population import _observer_key, draw_observers
 from jaxadapt.psychophysics.stimuli import CUES
 
+__all__ = [
+    "Experiment",
+    "run_observer",
+    "simulate_observers",
+    "simulate",
+    "CHUNK",
+    "simulate_in_chunks",
+    "participant_names",
+    "TRIAL_COLUMNS",
+    "trial_table",
+    "write_trials",
+    "append_trials",
+    "observer_table",
+    "OBSERVER_FIELDS",
+    "groups",
+]
+
 
 class Experiment(NamedTuple):
     """A simulated experiment (leading axis: observers).

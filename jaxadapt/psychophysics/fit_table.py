@@ -26,6 +26,8 @@ from jaxadapt.psychophysics.separation import (
 )
 from jaxadapt.psychophysics.trials import csv_cell, group_trials, read_trials
 
+__all__ = ["FIT_COLUMNS", "FitTable", "fit_groups", "batch_size", "write_fits", "fit_file"]
+
 #: Columns of ``fits.csv``.
 FIT_COLUMNS = (
     "participant",

@@ -29,6 +29,20 @@ rank the participant at either end). ``EXTRAPOLATED`` PSEs are returned, as
 Jacobs et al. (2015), §4.1.2, does for its participant 11, and flagged.
 """
 
+__all__ = [
+    "ALL_SAME",
+    "SEPARATION",
+    "SINGLE_LEVEL",
+    "EXTRAPOLATED",
+    "FLAT",
+    "FLAG_NAMES",
+    "NO_MLE",
+    "NO_PSE",
+    "PRIOR_SD",
+    "MIN_SLOPE",
+    "flag_names",
+]
+
 ALL_SAME = 1
 SEPARATION = 2
 SINGLE_LEVEL = 4

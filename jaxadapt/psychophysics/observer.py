@@ -89,6 +89,16 @@ from jaxadapt.psychophysics.stimuli import (  # noqa: F401  (as before their mod
     stimulus_features,
 )
 
+__all__ = [
+    "Observer",
+    "decision_mean",
+    "probability",
+    "trial_probability",
+    "respond",
+    "true_pse",
+    "weights_for_pse",
+]
+
 
 def _zeros():
     return jnp.zeros(len(CUES), dtype=jnp.result_type(float))

@@ -20,6 +20,8 @@ from jaxadapt._checks import check_value, float_array
 from jaxadapt.psychophysics.observer import Observer, _check_cue_axis, _zeros
 from jaxadapt.psychophysics.stimuli import CUES
 
+__all__ = ["Population", "POPULATIONS", "N_NORMALS", "observers_from_normals", "draw_observers"]
+
 
 class Population(eqx.Module):
     """Where observers come from: the distribution of

@@ -93,6 +93,8 @@ from jaxadapt.psychophysics.flags import (  # noqa: F401  (the flags, as before 
     flag_names,
 )
 
+__all__ = ["MAX_STEPS", "Fit", "psychometric", "sample_counts", "fit"]
+
 #: Default iteration cap of BFGS.
 MAX_STEPS = 256
 

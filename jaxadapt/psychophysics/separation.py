@@ -13,6 +13,8 @@ from scipy.special import log_ndtr
 
 from jaxadapt.psychophysics.flags import FLAT, NO_MLE, NO_PSE, SEPARATION
 
+__all__ = ["undetermined", "SIGMA_BOUND_LEVEL", "sigma_bound", "separating_gap"]
+
 
 def undetermined(flags):
     """Groups (by their fit's ``flags``) whose data do not determine the

@@ -15,6 +15,8 @@ from jax.sharding import PartitionSpec as P
 from jaxadapt.psychophysics._inputs import _checked_inputs
 from jaxadapt.psychophysics.psychometric import MAX_STEPS, _fit_batch
 
+__all__ = ["map_sharded", "fit_sharded"]
+
 
 @eqx.filter_jit
 def _on_mesh(fn, sharding, args, options):

@@ -45,6 +45,20 @@ from jax.scipy.special import ndtr
 
 from jaxadapt.operators.checks import plain_errors
 
+__all__ = [
+    "AUTO_EXACT_MAX",
+    "RankSum",
+    "Comparison",
+    "median",
+    "exact_too_large",
+    "ranksum",
+    "hodges_lehmann",
+    "compare",
+    "GROUP_TEST_COLUMNS",
+    "group_tests",
+    "untested",
+]
+
 #: ``method="auto"`` uses the exact null distribution when the smaller group
 #: has at most this many values and there are no ties (SciPy's rule).
 AUTO_EXACT_MAX = 8

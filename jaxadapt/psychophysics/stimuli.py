@@ -37,6 +37,18 @@ from jaxadapt.color import photopic_luminance
 from jaxadapt.psychophysics.displays import DISPLAYS
 from jaxadapt.spatial import gaussian_blur
 
+__all__ = [
+    "CUES",
+    "SHARPNESS_SIGMA",
+    "CUE_FLOOR",
+    "Features",
+    "Stimuli",
+    "stimulus_features",
+    "stimuli_from_displays",
+    "render_stimuli",
+    "plain_stimuli",
+]
+
 #: The cue terms of the brightness signal, in the order of ``weights``.
 CUES = ("afterimage", "desaturation", "blur")
 #: Standard deviation of the blur whose residual is the "finest scale" of

@@ -31,6 +31,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+__all__ = [
+    "TRIAL_COLUMNS",
+    "COUNT_COLUMNS",
+    "OPTIONAL_COLUMNS",
+    "TrialTable",
+    "Groups",
+    "OTHER_SEPARATORS",
+    "read_trials",
+    "group_trials",
+    "csv_cell",
+]
+
 #: Columns of a trial table with one row per trial.
 TRIAL_COLUMNS = ("participant", "condition", "level", "response")
 #: Columns of a trial table with counts.
