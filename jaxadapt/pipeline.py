@@ -169,6 +169,7 @@ def from_scene(scene, multiplier=1.0):
         scene.goal,
         scene.adaptation,
         scene.pixels_per_degree,
+        scene.shape,
     )
 
 

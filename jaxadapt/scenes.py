@@ -67,6 +67,9 @@ class Scene(NamedTuple):
         first frame; None to adapt to the first frame's goal.
     pixels_per_degree : float
         Resolution of the frames at the viewer's eye.
+    shape : tuple or None
+        Frame size ``(H, W)``, pixels, known before a frame is rendered;
+        None where only rendering tells.
     """
 
     name: str
@@ -77,6 +80,7 @@ class Scene(NamedTuple):
     goal: str
     adaptation: float | None
     pixels_per_degree: float
+    shape: tuple | None = None
 
 
 def _check_frames(width, height, duration, fps):
@@ -205,6 +209,7 @@ def title_step(
         "white_fraction",
         moonlight_goal,
         width / 40.0,
+        (height, width),
     )
 
 
@@ -332,6 +337,7 @@ def tunnel_drive(
         "foveal",
         None,
         focal * np.pi / 180.0,  # at the centre, where the gaze is: focal length / radian
+        (height, width),
     )
 
 
@@ -445,7 +451,8 @@ def _uniform_scene(name, image, duration, fps, gaze, pixels_per_degree, luminanc
         scale = np.ones(len(t)) if luminance is None else luminance(t)
         return image[None] * jnp.asarray(scale, jnp.float32)[:, None, None, None]
 
-    return Scene(name, times, dt, render, gaze, "foveal", None, pixels_per_degree)
+    shape = tuple(image.shape[:2])
+    return Scene(name, times, dt, render, gaze, "foveal", None, pixels_per_degree, shape)
 
 
 def flash(

@@ -43,6 +43,19 @@ def test_every_scene_renders_one_time_as_a_batch_of_one(name):
     frames = np.asarray(scene.render(scene.times[0]))
     assert frames.shape == (1, 16, 32, 3) and np.all(np.isfinite(frames))
     assert np.asarray(scene.gaze(scene.times[0])).shape == (1, 2)
+    assert scene.shape == (16, 32)  # known before rendering: a render checks its size first
+
+
+def test_a_scenes_size_is_known_without_rendering_a_frame():
+    from jaxadapt import pipeline
+
+    scene = scenes.tunnel_drive(width=40, height=24, duration=0.2)
+
+    def unrendered(t):
+        raise AssertionError("a frame was rendered to learn the size")
+
+    source = pipeline.from_scene(scene._replace(render=unrendered))
+    assert pipeline.frame_shape(source) == (24, 40)
 
 
 @pytest.mark.parametrize(
