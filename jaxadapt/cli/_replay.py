@@ -7,15 +7,13 @@ import warnings
 
 import numpy as np
 
+from jaxadapt.cli._frames import FrameOutputs
 from jaxadapt.cli._options import MP4_MIN_FPS, UsageError
 from jaxadapt.cli._output import _report, _video_and_progress
 from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 #: The formats of a replay: the viewer's frames are 8-bit display pixels.
 REPLAY_FORMATS = ("png", "mp4")
-
-#: Frames of the replay shown on its contact sheet.
-CONTACT_FRAMES = 12
 
 
 #: The options of ``render`` that a replay takes (the others the record fixes).
@@ -99,38 +97,28 @@ def render(args, console):
 
     operator = spec.get("operator", DEFAULT_OPERATOR)
     encoding = "gamma" if OPERATORS.supports(operator).display_encoded else "srgb"
-    digits = max(5, len(str(len(rows) - 1)))
-    shown = set(np.linspace(0, len(rows) - 1, min(CONTACT_FRAMES, len(rows))).round().astype(int))
-    contact, labels, table, differ = [], [], [], []
+    times = np.concatenate([[0.0], np.cumsum(dt)[:-1]])  # each frame's session time, s
+    table, differ = [], []
     with _staged(args.out, console, RENDER_OUTPUTS, keep=[path]) as staging:
         with contextlib.ExitStack() as stack:
             send_video, advance = _video_and_progress(
                 stack, staging, formats, fps, encoding, console, (f"replaying {path}", len(rows))
             )
 
-            def write(frame):
-                if "png" in formats:
-                    name = f"frame_{frame.index:0{digits}d}.png"
-                    io.write_image(staging / name, frame.pixels, encoding)
-                send_video(frame.pixels[None])
-                advance(1)
-
+            write = FrameOutputs(
+                staging, formats, times, fps, (encoding, True), send_video, advance
+            )
             submit = stack.enter_context(pipeline.behind(write))
-            clock = 0.0
-            for frame, row in zip(frames, rows, strict=True):
+            for frame, row, t in zip(frames, rows, times, strict=True):
                 if frame.digest != row["digest"]:
                     differ.append(frame.index)
-                if frame.index in shown:
-                    contact.append(figures.shrink(frame.pixels).round().astype(np.uint8))
-                    labels.append(f"{clock:.3g} s")
-                table.append((clock, frame.dt, *frame.gaze, frame.scene_index, frame.adaptation))
-                clock += frame.dt
-                submit(frame)
+                table.append((t, frame.dt, *frame.gaze, frame.scene_index, frame.adaptation))
+                submit((np.array([frame.index]), frame.pixels[None]))
         columns = ("t", "dt", "gaze_x", "gaze_y", "scene_index", "adaptation")
         table = dict(zip(columns, np.array(table, np.float64).T, strict=True))
         io.write_columns(staging / "diagnostics.csv", table)
-        sheet = figures.contact_sheet(np.stack(contact), labels=labels)
-        io.write_image(staging / "contact_sheet.png", sheet, encoding)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            write.contact_sheet(np.log10(table["adaptation"]))
         figures.plot_columns(
             staging / "adaptation.png",
             {k: table[k] for k in ("t", "adaptation", "gaze_x", "gaze_y")},

@@ -8,6 +8,7 @@ import re
 import numpy as np
 
 from jaxadapt.cli import _replay
+from jaxadapt.cli._frames import FrameOutputs
 from jaxadapt.cli._options import COMMANDS, FPS_RANGE, MP4_MIN_FPS, UsageError
 from jaxadapt.cli._output import _report, _video_and_progress
 from jaxadapt.cli._render_options import (
@@ -23,8 +24,6 @@ from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 __all__ = [
     "add_parser",
-    "CONTACT_FRAMES",
-    "CONTACT_CANDIDATES",
     "BACKGROUND_SCALE",
     "render",
     "BLEACHED",
@@ -50,11 +49,6 @@ def add_parser(sub):
     ):
         parser.add_argument(*flags, **kwargs)
     parser.set_defaults(run=render)
-
-
-#: Frames of the contact sheet (:func:`jaxadapt.figures.spread_frames` chooses
-#: them once the adaptation is known) and frames kept, shrunk, to choose from.
-CONTACT_FRAMES, CONTACT_CANDIDATES = 12, 64
 
 
 #: Size of a local background estimator unless --background-scale says otherwise, pixels.
@@ -214,7 +208,7 @@ def render(args, console):
     their outputs written behind, then the diagnostics, sheet and plot."""
     import jax
 
-    from jaxadapt import figures, io, pipeline
+    from jaxadapt import io, pipeline
 
     if args.replay is not None:
         options = (*_input_options(), *_operator_options(), *_adaptation_options())
@@ -238,8 +232,8 @@ def render(args, console):
             send_video, advance = _video_and_progress(
                 stack, staging, formats, fps, encoding, console, (f"rendering {source.name}", T)
             )
-            write = _Outputs(
-                staging, formats, source, fps, (encoding, encoded), send_video, advance
+            write = FrameOutputs(
+                staging, formats, source.times, fps, (encoding, encoded), send_video, advance
             )
             key = jax.random.key(args.seed or 0)
             budget = args.memory or pipeline.MEMORY_BUDGET
@@ -251,14 +245,7 @@ def render(args, console):
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
-        shown = figures.spread_frames(
-            table["t"], op.log_adaptation(table), CONTACT_FRAMES, among=list(write.kept)
-        )
-        sheet = figures.contact_sheet(
-            np.stack([write.kept[i] for i in shown]),
-            labels=[f"{source.times[i]:.3g} s" for i in shown],
-        )
-        io.write_image(staging / "contact_sheet.png", sheet, encoding)
+        write.contact_sheet(op.log_adaptation(table))
         plot(staging / "adaptation.png", table)
         names = sorted(path.name for path in staging.iterdir())
     frame_files = [name for name in names if name.startswith("frame_")]
@@ -294,47 +281,6 @@ def _prepared(args, console):
             f"got {fps:g}; choose --format png, exr or pfm"
         )
     return source, formats, fps
-
-
-class _Outputs:
-    """Writes a computed chunk ``(idx, linear frames)`` into the staging
-    folder, in the write-behind thread: the frame files of ``formats``, the
-    video's frames (``send_video``), and the frames the contact sheet may
-    show, shrunk and display-encoded in :attr:`kept` by index (at most
-    :data:`CONTACT_CANDIDATES`, evenly spaced); ``advance(n)`` says that
-    ``n`` more frames are written. ``coding``: the display encoding of
-    8-bit outputs, and whether the operator's frames come display-encoded
-    (jacobs2015)."""
-
-    def __init__(self, staging, formats, source, fps, coding, send_video, advance):
-        self.staging, self.formats, self.source, self.fps = staging, formats, source, fps
-        self.encoding, encoded = coding
-        self.send_video, self.advance = send_video, advance
-        self.code_as = "linear" if encoded else self.encoding  # (display.ENCODINGS)
-        T = len(source.times)
-        self.digits = max(5, len(str(T - 1)))  # frame files sort in order
-        self.candidates = set(np.linspace(0, T - 1, min(T, CONTACT_CANDIDATES)).round().astype(int))
-        self.kept = {}
-
-    def __call__(self, chunk):
-        from jaxadapt import display, figures, io
-
-        idx, linear = chunk
-        coded = None
-        if {"png", "mp4"} & set(self.formats):
-            coded = display.encode_uint8(linear, self.code_as)
-        for k in [k for k, i in enumerate(idx) if i in self.candidates]:  # shrunk in linear light
-            self.kept[idx[k]] = display.encode_uint8(figures.shrink(linear[k]), self.code_as)
-        for k, i in enumerate(idx):
-            name = f"frame_{i:0{self.digits}d}"
-            if "png" in self.formats:
-                io.write_image(self.staging / f"{name}.png", coded[k], self.encoding)
-            if "exr" in self.formats:
-                io.write_image(self.staging / f"{name}.exr", linear[k], fps=self.fps)
-            if "pfm" in self.formats:
-                io.write_image(self.staging / f"{name}.pfm", linear[k])
-        self.send_video(coded)  # (a no-op without mp4)
-        self.advance(len(idx))
 
 
 #: Unbleached fraction of the cone pigment below which a render warns (:func:`_warn_bleached`).
