@@ -23,7 +23,6 @@ from jaxadapt.background import LUMINANCE_CEILING
 __all__ = [
     "check_frames",
     "saturate",
-    "saturate_planes",
     "frames_messages",
     "frames_and_dt_messages",
     "check_frames_and_dt",
@@ -60,7 +59,8 @@ def check_frames(frames, rank, name="frames", on_host=False):
 
 
 def saturate(rgb):
-    """Linear RGB ``(..., 3)`` (cd/m2) with every channel above
+    """Linear RGB ``(..., 3)`` (cd/m2), or any of its channels or
+    luminances, with every value above
     :data:`~jaxadapt.background.LUMINANCE_CEILING` clipped to it: what the
     operators see of a frame.
 
@@ -76,11 +76,6 @@ def saturate(rgb):
     """
     rgb = jnp.asarray(rgb)
     return jnp.minimum(rgb, jnp.asarray(LUMINANCE_CEILING, rgb.dtype))
-
-
-def saturate_planes(channels):
-    """:func:`saturate` of channel planes ``[r, g, b]`` (a fused kernel's form)."""
-    return [jnp.minimum(c, jnp.asarray(LUMINANCE_CEILING, c.dtype)) for c in channels]
 
 
 def frames_messages(name="frames"):

@@ -30,7 +30,6 @@ import numpy as np
 
 from jaxadapt._checks import check_value, float_array
 from jaxadapt.background import (
-    LUMINANCE_CEILING,
     LUMINANCE_FLOOR,
     check_background,
     estimate_background,
@@ -411,7 +410,7 @@ def _background(L, background):
             ) from None
         bad = ~jnp.all(jnp.isfinite(I_b) & (I_b >= 0))
         I_b = eqx.error_if(I_b, bad, "background: expected finite, non-negative luminance (cd/m2)")
-        I_b = jnp.minimum(I_b, LUMINANCE_CEILING)  # as the frame's luminance (saturate)
+        I_b = saturate(I_b)  # as the frame's luminance
     try:
         fits = jnp.broadcast_shapes(I_b.shape, L.shape) == L.shape
     except ValueError:

@@ -22,7 +22,7 @@ from jaxadapt.color import (
     photopic_luminance,
     scotopic_luminance,
 )
-from jaxadapt.operators.checks import check_rgb, saturate, saturate_planes
+from jaxadapt.operators.checks import check_rgb, saturate
 from jaxadapt.operators.pattanaik2000._params import CURVE_LOG10_LUMINANCE, Display, Observer
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import (
@@ -219,7 +219,7 @@ def tone_map(params, obs, rgb):
 def tone_map_planes(params, obs, channels):
     """:func:`tone_map` on channel planes ``[r, g, b]``, for a fused kernel
     (:func:`jaxadapt.fused.map_pixels`): the same terms, once per pixel."""
-    channels = saturate_planes(channels)
+    channels = [saturate(c) for c in channels]
     L_rod, L_cone = (combine(w, channels) for w in (W_SCOTOPIC, W_PHOTOPIC))
     e, s, black = pixel_terms(params, obs, L_rod, L_cone)
     return [display_value(e, s, black, c) for c in channels]
