@@ -271,15 +271,12 @@ def _check_options(args):
     for option, given, capability in (
         ("adaptation_goal", args.adaptation_goal is not None, "adaptation_goal"),
         ("background", args.background != "global", "local_background"),
-        ("encoding", args.encoding is not None, None),  # (not for display_encoded ones)
+        ("encoding", args.encoding is not None, "encoding"),
         ("seed", args.seed is not None, "seed"),
         ("gaze", args.gaze is not None, "gaze"),
         ("pixels_per_degree", args.pixels_per_degree is not None, "time_dependent"),
     ):
-        taken = (
-            not supports.display_encoded if capability is None else getattr(supports, capability)
-        )
-        if not given or taken:
+        if not given or getattr(supports, capability):
             continue
         flag = f"--{option.replace('_', '-')}"
         if not supports.time_dependent and option in ("gaze", "pixels_per_degree"):

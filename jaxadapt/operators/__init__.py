@@ -111,6 +111,12 @@ class Supports:
     composable: bool = True
     why_not: dict = dataclasses.field(default_factory=dict)
 
+    @property
+    def encoding(self) -> bool:
+        """A display encoding (``--encoding``) applies to its frames: they
+        are not display-encoded already."""
+        return not self.display_encoded
+
 
 class _Registry(Mapping):
     """Names to operator modules, each imported when first asked for, and
@@ -137,7 +143,8 @@ class _Registry(Mapping):
 
     def having(self, capability) -> list:
         """The names of the operators that support ``capability`` (a field
-        of :class:`Supports`: true, or not empty), in the registry's order."""
+        or property of :class:`Supports`: true, or not empty), in the
+        registry's order."""
         return [n for n, (_, s) in self._entries.items() if getattr(s, capability)]
 
 
