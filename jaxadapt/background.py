@@ -25,6 +25,7 @@ from jaxadapt.spatial import (
     gaussian_blur,
     lowpass_stack,
     plane_sum,
+    sum_headroom,
 )
 
 __all__ = [
@@ -131,8 +132,9 @@ def arithmetic_average(L):
     -----
     A float32 sum of luminances near float32's largest value (3.4e38)
     overflows although their mean does not; there the mean is taken of
-    the image scaled by ``2^-32`` (exact above 1e-28 cd/m2, and no sum
-    of up to ``2^32`` pixels overflows), then scaled back. A division by
+    the image scaled down by a power of two at least its pixel count
+    (:func:`jaxadapt.spatial.sum_headroom`, as the box and bilateral sums
+    take theirs), then scaled back. A division by
     the largest value would not do: XLA's CPU backend divides by
     multiplying with the reciprocal, a denormal that it flushes to 0
     above 8.5e37. Elsewhere it is the plain mean, bit for bit.
@@ -143,8 +145,8 @@ def arithmetic_average(L):
     50.5
     """
     mean = jnp.mean(L, axis=(-2, -1))
-    scale = jnp.asarray(2.0**32, mean.dtype)
-    scaled = jnp.mean(L * (1.0 / scale), axis=(-2, -1)) * scale
+    down, up = sum_headroom(L.shape[-2] * L.shape[-1], mean.dtype)
+    scaled = jnp.mean(L * down, axis=(-2, -1)) * up
     return jnp.where(jnp.isfinite(mean), mean, scaled)
 
 

@@ -18,6 +18,7 @@ __all__ = [
     "LONG_KERNEL",
     "gaussian_blur",
     "as_image",
+    "sum_headroom",
     "box_filter",
     "iterated_box_filter",
     "lowpass_stack",
@@ -428,7 +429,7 @@ def box_filter(image, radius):
     image = as_image(image)
     r = check_whole("radius", radius, unit="pixels")
     w = 2 * r + 1
-    down, up = _headroom(w * w, image.dtype)
+    down, up = sum_headroom(w * w, image.dtype)
     image = image * down
     for axis in (image.ndim - 2, image.ndim - 1):  # one axis extended at a time
         extended = jnp.take(image, _reflect_indices(image.shape[axis], r), axis=axis)
@@ -436,7 +437,7 @@ def box_filter(image, radius):
     return image / jnp.asarray(w * w, image.dtype) * up
 
 
-def _headroom(count, dtype):
+def sum_headroom(count, dtype):
     """``(2^-k, 2^k)`` with ``2^k >= count``: the factors by which a sum of
     ``count`` values is taken and its mean given back, so that the sum of
     values near the dtype's largest (float32's 3.4e38) does not overflow.
@@ -639,7 +640,7 @@ def bilateral_filter(
     padded_values, padded_guide = _reflect_pad(values, R), _reflect_pad(guide, R)
     rows, cols = np.nonzero(window)
     taps = (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(window[rows, cols], image.dtype))
-    down, up = _headroom(rows.size, image.dtype)  # the sum of every tap's value
+    down, up = sum_headroom(rows.size, image.dtype)  # the sum of every tap's value
     padded_values = padded_values * down
 
     def accumulate(carry, tap):
