@@ -1,6 +1,7 @@
 """Every operator of the registry keeps the contract written in
 :class:`jaxadapt.operators.Operator`, and runs as the pipeline calls it."""
 
+import dataclasses
 import inspect
 import subprocess
 import sys
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from jaxadapt import operators
-from jaxadapt.operators import OPERATORS, TONE_CURVE_NAMES, Operator, classic
+from jaxadapt.operators import OPERATORS, TONE_CURVE_NAMES, Operator, Settings, classic
 
 
 def _signature(function, method=False):
@@ -62,6 +63,43 @@ def test_each_operator_runs_a_sequence_as_the_pipeline_does(name):
     assert all(len(column) == 3 for column in table.values())
 
 
+@pytest.mark.parametrize("name", list(OPERATORS))
+def test_configure_makes_the_params_the_settings_ask_for(name):
+    op, supports = OPERATORS[name], OPERATORS.supports(name)
+    settings = Settings(name, fps=60.0, pixels_per_degree=45.0, background_scale=5.0)
+    params = op.configure(settings)
+    assert isinstance(params, op.Params)
+    if supports.local_background:
+        local = op.configure(dataclasses.replace(settings, background="gaussian"))
+        assert (local.background, local.background_scale) == ("gaussian", 5.0)
+    if supports.time_dependent:
+        assert float(params.pixels_per_degree) == 45.0
+    for effect in supports.effects:  # each effect on alone, as the viewer asks
+        alone = op.configure(dataclasses.replace(settings, effects=(effect,)))
+        assert {e for e in supports.effects if getattr(alone, e)} == {effect}
+    assert op.describe(settings)
+
+
+@pytest.mark.parametrize(
+    ("settings", "refused"),
+    [
+        (Settings("pattanaik2000", background="gaussian", given=frozenset({"goal"})), "goal"),
+        (Settings("pattanaik2000", goal="log_average", given=frozenset({"gaze"})), "gaze"),
+        (
+            Settings(
+                "pattanaik2000", goal="white_fraction", given=frozenset({"pixels_per_degree"})
+            ),
+            "pixels_per_degree",
+        ),
+    ],
+)
+def test_configure_refuses_a_chosen_setting_the_model_would_ignore(settings, refused):
+    with pytest.raises(ValueError, match=f"^{refused}: "):
+        OPERATORS[settings.name].configure(settings)
+    # the same values taken by default are not refused
+    OPERATORS[settings.name].configure(dataclasses.replace(settings, given=frozenset()))
+
+
 def test_the_registry_imports_an_operator_only_when_asked_for():
     # The command line lists the names at start-up; the import of an
     # operator (JAX, its compiled functions' modules) waits for its run.
@@ -71,7 +109,14 @@ def test_the_registry_imports_an_operator_only_when_asked_for():
         "OPERATORS['jacobs2015']; assert 'jaxadapt.operators.jacobs2015' in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
-    assert set(operators.__all__) == {"OPERATORS", "TONE_CURVE_NAMES", "Operator", "Supports"}
+    assert set(operators.__all__) == {
+        "BACKGROUND_SCALE",
+        "OPERATORS",
+        "TONE_CURVE_NAMES",
+        "Operator",
+        "Settings",
+        "Supports",
+    }
     code = (
         "import sys; from jaxadapt.operators import OPERATORS; OPERATORS.having('live'); "
         "OPERATORS.supports('jacobs2015').effects; "

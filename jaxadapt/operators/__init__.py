@@ -23,7 +23,7 @@ from collections.abc import Iterator, Mapping
 from types import ModuleType
 from typing import Any, Protocol, runtime_checkable
 
-__all__ = ["OPERATORS", "TONE_CURVE_NAMES", "Operator", "Supports"]
+__all__ = ["BACKGROUND_SCALE", "OPERATORS", "TONE_CURVE_NAMES", "Operator", "Settings", "Supports"]
 
 #: Names of the static tone curves of :mod:`~jaxadapt.operators.classic`
 #: (its ``TONE_CURVES``), each an operator of its own for the command line.
@@ -63,6 +63,63 @@ class Operator(Protocol):
     def log_adaptation(self, table) -> Any:
         """Each frame's adaptation luminance (log10 cd/m2) from the columns
         of :meth:`diagnostics_table`: what a contact sheet follows."""
+
+    def configure(self, settings) -> Any:
+        """The ``Params`` that a render's :class:`Settings` ask for; a
+        ``ValueError`` naming the setting (``gaze: ...``) for one given
+        that this operator would ignore."""
+
+    def describe(self, settings) -> str:
+        """What :meth:`configure` makes of ``settings``, a few words for a
+        title (``Pattanaik et al. 2000, goal foveal``)."""
+
+    def plot_diagnostics(self, path, table, params, title) -> Any:
+        """Draw the columns of :meth:`diagnostics_table` over time to
+        ``path`` (a PNG), titled ``title``; returns the figure."""
+
+
+#: Size of a local background estimator unless a render says otherwise, pixels.
+BACKGROUND_SCALE = 8.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """A render's choices, the same for every operator: each operator's
+    ``configure`` makes its ``Params`` of those it reads, so that whatever
+    drives an operator (the command line, the viewer, a study) says what it
+    wants once and never by the operator's name.
+
+    Attributes
+    ----------
+    name : str
+        The operator's name in :data:`OPERATORS` (a tone curve's, for
+        :mod:`~jaxadapt.operators.classic`).
+    fps : float
+        The frames' nominal rate, frames/s.
+    pixels_per_degree : float
+        Resolution of the frames at the viewer's eye.
+    goal : str
+        Adaptation goal (:mod:`~jaxadapt.operators.goal`), for an operator
+        that takes one.
+    background, background_scale : str, float
+        Background estimator (:mod:`jaxadapt.background`) and its size,
+        pixels.
+    effects : tuple of str or None
+        The effects (:attr:`Supports.effects`) switched on; None for all.
+    given : frozenset of str
+        The settings a user chose rather than took by default, by the
+        names above plus ``gaze`` (a gaze path was given): those an operator
+        refuses where it would ignore them.
+    """
+
+    name: str
+    fps: float = 30.0
+    pixels_per_degree: float = 30.0
+    goal: str = "foveal"
+    background: str = "global"
+    background_scale: float = BACKGROUND_SCALE
+    effects: tuple | None = None
+    given: frozenset = frozenset()
 
 
 @dataclasses.dataclass(frozen=True)

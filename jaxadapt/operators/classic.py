@@ -76,6 +76,9 @@ __all__ = [
     "DIAGNOSTIC_UNITS",
     "diagnostics_table",
     "log_adaptation",
+    "configure",
+    "describe",
+    "plot_diagnostics",
 ]
 
 
@@ -610,3 +613,22 @@ def log_adaptation(table):
     ``background`` of :func:`diagnostics_table`); -inf for a black frame."""
     with np.errstate(divide="ignore"):
         return np.log10(table["background"])
+
+
+def configure(settings):
+    """The :class:`Params` of ``settings``: the tone curve named
+    ``settings.name`` (:data:`TONE_CURVES`, its published parameters) and
+    its background."""
+    return Params(TONE_CURVES[settings.name](), settings.background, settings.background_scale)
+
+
+def describe(settings):
+    """The curve's name and its background."""
+    return f"{settings.name}, {settings.background} background"
+
+
+def plot_diagnostics(path, table, params, title):
+    """The background over time (:func:`jaxadapt.figures.plot_columns`)."""
+    from jaxadapt import figures
+
+    return figures.plot_columns(path, table, title, units=DIAGNOSTIC_UNITS)

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxadapt.operators import OPERATORS
+from jaxadapt.operators import OPERATORS, Settings
 
 #: Frame size ``(W, H)`` the viewer renders at by default, pixels: the
 #: largest 16:9 size at which jacobs2015 keeps 30 frames/s on a 2-core CPU
@@ -140,7 +140,7 @@ def open_source(spec):
         return source, source.pixels_per_degree
     files = spec["files"]
     source = pipeline.from_files(files, spec.get("fps"), spec.get("multiplier", 1.0))
-    h, w = pipeline.frame_shape(source)
+    h, w = source.shape
     scale = min(1.0, W / w, H / h)
     size = (max(2, round(h * scale)), max(2, round(w * scale)))
     if size != (h, w):
@@ -203,18 +203,19 @@ class Session:
         return self.supports.effects
 
     def params(self):
-        """The operator's :class:`Params` for the effects now on (cached:
-        each combination compiles once)."""
+        """The operator's :class:`Params` for the effects now on, from the
+        registry's contract (:meth:`~jaxadapt.operators.Operator.configure`;
+        cached: each combination compiles once)."""
         key = self.effects_name()
         if key not in self._params:
-            ppd = float(self.spec["pixels_per_degree"])
-            if self.available_effects:
-                blur = self.op.blur_for_display(ppd, 1 / FIRST_DT)
-                self._params[key] = self.op.only(
-                    *sorted(self.effects), pixels_per_degree=ppd, afterimage_blur=blur
-                )
-            else:
-                self._params[key] = self.op.Params(goal="foveal", pixels_per_degree=ppd)
+            settings = Settings(
+                self.operator,
+                fps=1 / FIRST_DT,
+                pixels_per_degree=float(self.spec["pixels_per_degree"]),
+                goal="foveal",
+                effects=tuple(sorted(self.effects)),
+            )
+            self._params[key] = self.op.configure(settings)
         return self._params[key]
 
     def effects_name(self):

@@ -114,6 +114,7 @@ from jaxadapt.operators.jacobs2015._afterimage import (
     receptors,
     retinal_shift,
 )
+from jaxadapt.operators.jacobs2015._configure import configure, describe, plot_diagnostics
 from jaxadapt.operators.jacobs2015._operator import init, run, step
 from jaxadapt.operators.jacobs2015._params import (
     ACUITY_NOISE_CELL_DEG,
@@ -187,4 +188,7 @@ __all__ = [
     "log_adaptation",
     "step",
     "run",
+    "configure",
+    "describe",
+    "plot_diagnostics",
 ]
