@@ -147,7 +147,7 @@ def stages(paths, scratch):
 
     runtime.retain_freed_memory()
     source = pipeline.from_files(paths, 30.0)
-    size = pipeline.chunk_size(pipeline.frame_shape(source))
+    size = pipeline.chunk_size(source.shape)
     idx = np.arange(min(size, len(paths)))
 
     def median(fn):

@@ -71,7 +71,9 @@ def blink(image, fps, exposure=EXPOSURE, after=4.1, field_deg=FIELD_DEG):
 
     gaze = fixate((width - 1) / 2.0, (height - 1) / 2.0)
     dt = np.full(count, 1.0 / fps)
-    return scenes.Scene("blink", times, dt, render, gaze, "foveal", None, width / field_deg)
+    return scenes.Scene(
+        "blink", times, dt, render, gaze, "foveal", None, width / field_deg, (height, width)
+    )
 
 
 def hues_by_decade(afterimage, scene, params):

@@ -36,7 +36,6 @@ __all__ = [
     "MAX_CHUNK",
     "chunk_size",
     "Source",
-    "frame_shape",
     "from_scene",
     "files_rate",
     "from_files",
@@ -96,9 +95,8 @@ class Source(NamedTuple):
         None to adapt to the first frame.
     pixels_per_degree : float
         Resolution of the frames at the viewer's eye.
-    shape : tuple or None
-        Frame size ``(H, W)``, pixels; None where unknown until a frame is
-        made (:func:`frame_shape`).
+    shape : tuple
+        Frame size ``(H, W)``, pixels, known before a frame is made.
     """
 
     name: str
@@ -109,15 +107,7 @@ class Source(NamedTuple):
     goal: str
     adaptation: float | None
     pixels_per_degree: float
-    shape: tuple | None = None
-
-
-def frame_shape(source):
-    """The frame size ``(H, W)`` of ``source``: its ``shape``, else that of
-    its first frame."""
-    if source.shape is not None:
-        return tuple(source.shape)
-    return source.frames(np.arange(1)).shape[1:3]
+    shape: tuple
 
 
 def _check_multiplier(multiplier):
@@ -203,9 +193,10 @@ def from_files(paths, fps=None, multiplier=1.0):
     ValueError
         No path, ``fps`` or ``multiplier`` not positive and finite, a file
         that cannot be read as an HDR image or whose size differs from the
-        first's (all checked up front, from the files' headers); later, when
-        its chunk is read, a frame that holds negative, NaN or infinite
-        values.
+        first's (all checked up front, from the files' headers alone: no
+        pixel is read until a chunk asks for it); later, when its chunk is
+        read, a frame whose pixel data are truncated or corrupt, or that
+        holds negative, NaN or infinite values.
     """
     paths = [Path(paths)] if isinstance(paths, (str, os.PathLike)) else [Path(p) for p in paths]
     if not paths:
@@ -213,21 +204,18 @@ def from_files(paths, fps=None, multiplier=1.0):
     fps = files_rate(paths) if fps is None else fps
     check_value("fps", fps, lambda f: np.isfinite(f) & (f > 0), "a positive frame rate")
     _check_multiplier(multiplier)
-    first = read_hdr(paths[0])
+    W, H = hdr_size(paths[0])
     for p in paths[1:]:
         width, height = hdr_size(p)
-        if (height, width) != first.shape[:2]:
-            raise ValueError(
-                f"{p}: expected {first.shape[1]}x{first.shape[0]} like {paths[0]}, "
-                f"got {width}x{height}"
-            )
+        if (width, height) != (W, H):
+            raise ValueError(f"{p}: expected {W}x{H} like {paths[0]}, got {width}x{height}")
 
     def read(i):
-        frame = first if i == 0 else read_hdr(paths[i])
+        frame = read_hdr(paths[i])
         _check_values(frame, paths[i])
         return _calibrated(frame, multiplier, paths[i])
 
-    centre = np.array([(first.shape[1] - 1) / 2.0, (first.shape[0] - 1) / 2.0])
+    centre = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
     T = len(paths)
     return Source(
         paths[0].name if T == 1 else f"{paths[0].name} to {paths[-1].name} ({T} files)",
@@ -238,7 +226,7 @@ def from_files(paths, fps=None, multiplier=1.0):
         "log_average",
         None,
         FILE_PIXELS_PER_DEGREE,
-        first.shape[:2],
+        (H, W),
     )
 
 
@@ -318,7 +306,7 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
         A display frame holds a non-finite value (:func:`_finite`).
     """
     if size is None:
-        size = chunk_size(frame_shape(source), budget)
+        size = chunk_size(source.shape, budget)
     size = check_whole("size", size, least=1, unit="frames")
     T = len(source.times)
 

@@ -67,9 +67,8 @@ class Scene(NamedTuple):
         first frame; None to adapt to the first frame's goal.
     pixels_per_degree : float
         Resolution of the frames at the viewer's eye.
-    shape : tuple or None
-        Frame size ``(H, W)``, pixels, known before a frame is rendered;
-        None where only rendering tells.
+    shape : tuple
+        Frame size ``(H, W)``, pixels, known before a frame is rendered.
     """
 
     name: str
@@ -80,7 +79,7 @@ class Scene(NamedTuple):
     goal: str
     adaptation: float | None
     pixels_per_degree: float
-    shape: tuple | None = None
+    shape: tuple
 
 
 def _check_frames(width, height, duration, fps):

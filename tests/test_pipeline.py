@@ -27,6 +27,7 @@ def _step_source(T=7, H=5, W=13, adaptation=None):
         "log_average",
         adaptation,
         30.0,
+        (H, W),
     )
 
 
@@ -167,6 +168,7 @@ def test_memory_stays_flat_over_a_long_sequence():
         "log_average",
         None,
         30.0,
+        (H, W),
     )
     resident, arrays = [], []
     for n, _ in enumerate(pipeline.chunks(pattanaik2000, pattanaik2000.Params(), source, 4)):

@@ -55,7 +55,7 @@ def test_a_scenes_size_is_known_without_rendering_a_frame():
         raise AssertionError("a frame was rendered to learn the size")
 
     source = pipeline.from_scene(scene._replace(render=unrendered))
-    assert pipeline.frame_shape(source) == (24, 40)
+    assert source.shape == (24, 40)
 
 
 @pytest.mark.parametrize(

@@ -4,6 +4,7 @@ streamed to display frames, a video, a contact sheet, a plot and
 
 import contextlib
 import re
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -24,7 +25,8 @@ from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 __all__ = [
     "add_parser",
-    "BACKGROUND_SCALE",
+    "Plan",
+    "SETTING_OPTIONS",
     "render",
     "BLEACHED",
 ]
@@ -51,10 +53,6 @@ def add_parser(sub):
     parser.set_defaults(run=render)
 
 
-#: Size of a local background estimator unless --background-scale says otherwise, pixels.
-BACKGROUND_SCALE = 8.0
-
-
 def _files_rate(files):
     """The frame rate of FILEs without ``--fps``
     (:func:`jaxadapt.pipeline.files_rate`), refused outside ``--fps``'s range."""
@@ -70,6 +68,8 @@ def _files_rate(files):
 
 
 def _source(args):
+    """The :class:`~jaxadapt.pipeline.Source` of FILEs (their headers read,
+    no pixel) or of the built-in scene the options describe."""
     from jaxadapt import pipeline
     from jaxadapt.scenes import SCENES
 
@@ -142,70 +142,88 @@ def _warn_gaze_off_frame(source, shape, path, console):
         )
 
 
-def _operator(args, source, fps):
-    """The operator module, its parameters (for frames at ``fps``) and the
-    plot of its diagnostics. Each module's parameters are made here from the
-    options (the checks of which options an operator takes, from the
-    registry, are :func:`_check_options`')."""
-    from functools import partial
+#: The settings an operator may refuse (:meth:`jaxadapt.operators.Operator.configure`)
+#: and the options that give them.
+SETTING_OPTIONS = {
+    "goal": "--adaptation-goal",
+    "gaze": "--gaze",
+    "pixels_per_degree": "--pixels-per-degree",
+    "background": "--background",
+    "background_scale": "--background-scale",
+}
 
-    from jaxadapt import figures
-    from jaxadapt.operators import OPERATORS, classic, jacobs2015, pattanaik2000
 
-    ppd = args.pixels_per_degree or source.pixels_per_degree
-    op = OPERATORS[args.operator]
-    if op is pattanaik2000:
-        goal = args.adaptation_goal or source.goal
-        if args.adaptation_goal is not None and args.background != "global":
-            raise UsageError(
-                f"--adaptation-goal: applies to a global background, not {args.background}, "
-                "whose local estimate is each pixel's goal"
-            )
-        if args.gaze is not None and args.background == "global" and goal != "foveal":
-            raise UsageError(
-                "--gaze: pattanaik2000 reads the gaze for the foveal adaptation goal or the "
-                f"diagnostics of a local background, not for goal {goal} with a global background"
-            )
-        if args.pixels_per_degree is not None and (goal, args.background) != ("foveal", "global"):
-            raise UsageError(
-                "--pixels-per-degree: applies to the foveal adaptation goal "
-                f"(--adaptation-goal foveal, global background), not goal {goal} "
-                f"with a {args.background} background"
-            )
-        params = op.Params(
-            goal=goal,
-            pixels_per_degree=ppd,
-            background=args.background,
-            background_scale=args.background_scale or BACKGROUND_SCALE,
+class Plan(NamedTuple):
+    """A render, resolved and checked before any frame is read: its source
+    (with ``--gaze``), operator module and parameters, plot title, output
+    formats, nominal frame rate (frames/s) and display ``encoding``, with
+    whether the operator's frames come ``encoded`` already."""
+
+    source: Any
+    op: Any
+    params: Any
+    title: str
+    formats: list
+    fps: float
+    encoding: str
+    encoded: bool
+
+
+def _planned(args, console):
+    """The :class:`Plan` of ``args``: the options checked, the source opened
+    (the files' headers only), the operator configured from the registry's
+    contract, each check once and in that order, with the warnings said."""
+    from jaxadapt import pipeline
+    from jaxadapt.operators import BACKGROUND_SCALE, OPERATORS, Settings
+
+    _check_options(args)
+    formats = args.formats or ["png", "mp4"]
+    source = _source(args)
+    _warn_numbers_out_of_order(args.files, console)
+    if args.background_scale is not None:
+        _check_scale_fits(args.background_scale, source.shape)
+    if args.gaze is not None:
+        source = pipeline.with_gaze(source, args.gaze)
+        _warn_gaze_off_frame(source, source.shape, args.gaze, console)
+    # The nominal rate: frames split at a flash's edges are shorter, none longer.
+    fps = 1.0 / float(np.max(source.dt))
+    if "mp4" in formats and fps < MP4_MIN_FPS:
+        raise UsageError(
+            f"--fps: a video (--format mp4, a default) needs at least {MP4_MIN_FPS:g} frames/s, "
+            f"got {fps:g}; choose --format png, exr or pfm"
         )
-        where = "goal " + goal if args.background == "global" else args.background + " background"
-        title = f"{source.name}: Pattanaik et al. 2000, {where}"
-        return (
-            op,
-            params,
-            partial(
-                figures.plot_adaptation, title=title, curve_log10_luminance=op.CURVE_LOG10_LUMINANCE
-            ),
-        )
-    if op is jacobs2015:
-        title = f"{source.name}: Jacobs et al. 2015, at the gaze point"
-        params = op.Params(pixels_per_degree=ppd, afterimage_blur=op.blur_for_display(ppd, fps))
-        notes = op.diagnostics_notes(params)
-        plot = partial(figures.plot_columns, title=title, units=op.DIAGNOSTIC_UNITS, notes=notes)
-        return op, params, plot
-    params = classic.Params(
-        classic.TONE_CURVES[args.operator](),
+    chosen = {
+        "goal": args.adaptation_goal,
+        "gaze": args.gaze,
+        "pixels_per_degree": args.pixels_per_degree,
+        "background_scale": args.background_scale,
+    }
+    settings = Settings(
+        args.operator,
+        fps,
+        args.pixels_per_degree or source.pixels_per_degree,
+        args.adaptation_goal or source.goal,
         args.background,
         args.background_scale or BACKGROUND_SCALE,
+        given=frozenset(name for name, value in chosen.items() if value is not None),
     )
-    title = f"{source.name}: {args.operator}, {args.background} background"
-    plot = partial(figures.plot_columns, title=title, units=classic.DIAGNOSTIC_UNITS)
-    return classic, params, plot
+    op = OPERATORS[args.operator]
+    try:
+        params = op.configure(settings)
+    except ValueError as error:  # named by the setting: name the option
+        name, _, rest = str(error).partition(": ")
+        raise UsageError(f"{SETTING_OPTIONS.get(name, name)}: {rest}") from None
+    encoded = OPERATORS.supports(args.operator).display_encoded
+    # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
+    encoding = "gamma" if encoded else args.encoding or "srgb"
+    title = f"{source.name}: {op.describe(settings)}"
+    return Plan(source, op, params, title, formats, fps, encoding, encoded)
 
 
 def render(args, console):
-    """``jaxadapt render``: check, stream the frames through the operator with
-    their outputs written behind, then the diagnostics, sheet and plot."""
+    """``jaxadapt render``: plan and check everything (:func:`_planned`), then
+    stream the frames through the operator with their outputs written
+    behind, then the diagnostics, sheet and plot."""
     import jax
 
     from jaxadapt import io, pipeline
@@ -215,29 +233,36 @@ def render(args, console):
         _replay.check(args, (*options, *_OUTPUT_OPTIONS))
         _replay.render(args, console)
         return
-    source, formats, fps = _prepared(args, console)
-    from jaxadapt.operators import OPERATORS
-
-    op, params, plot = _operator(args, source, fps)
-    encoded = OPERATORS.supports(args.operator).display_encoded
-    # The 2015 operator's display values J = R^0.455 are a gamma-2.2 encoding.
-    encoding = "gamma" if encoded else args.encoding or "srgb"
+    plan = _planned(args, console)
+    source, formats, fps = plan.source, plan.formats, plan.fps
     out, T, tables = args.out, len(source.times), []
     inputs = [*args.files, *([args.gaze] if args.gaze else [])]
     with _staged(out, console, RENDER_OUTPUTS, keep=inputs) as staging:
         if not args.allow_large:  # once --out is known to be writable
             frames_from = "FILE" if args.files else "--fps, --duration"
-            _check_work(T, pipeline.frame_shape(source), formats, out, frames_from)
+            _check_work(T, source.shape, formats, out, frames_from)
         with contextlib.ExitStack() as stack:
             send_video, advance = _video_and_progress(
-                stack, staging, formats, fps, encoding, console, (f"rendering {source.name}", T)
+                stack,
+                staging,
+                formats,
+                fps,
+                plan.encoding,
+                console,
+                (f"rendering {source.name}", T),
             )
             write = FrameOutputs(
-                staging, formats, source.times, fps, (encoding, encoded), send_video, advance
+                staging,
+                formats,
+                source.times,
+                fps,
+                (plan.encoding, plan.encoded),
+                send_video,
+                advance,
             )
             key = jax.random.key(args.seed or 0)
             budget = args.memory or pipeline.MEMORY_BUDGET
-            stream = pipeline.chunks(op, params, source, args.chunk, key, budget=budget)
+            stream = pipeline.chunks(plan.op, plan.params, source, args.chunk, key, budget=budget)
             with contextlib.closing(stream), pipeline.behind(write) as submit:
                 for idx, linear, table in stream:
                     submit((idx, linear))
@@ -245,8 +270,8 @@ def render(args, console):
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
-        write.contact_sheet(op.log_adaptation(table))
-        plot(staging / "adaptation.png", table)
+        write.contact_sheet(plan.op.log_adaptation(table))
+        plan.op.plot_diagnostics(staging / "adaptation.png", table, plan.params, plan.title)
         names = sorted(path.name for path in staging.iterdir())
     frame_files = [name for name in names if name.startswith("frame_")]
     others = [name for name in names if not name.startswith("frame_")]
@@ -255,32 +280,6 @@ def render(args, console):
     _report(
         f"wrote {len(names)} files to {out}/ ({', '.join(others)}) for {T} frame{'s' * (T > 1)}"
     )
-
-
-def _prepared(args, console):
-    """The checked options' source of frames (with ``--gaze``), output formats
-    and nominal frame rate (frames/s), with their warnings said."""
-    from jaxadapt import pipeline
-
-    _check_options(args)
-    formats = args.formats or ["png", "mp4"]
-    source = _source(args)
-    _warn_numbers_out_of_order(args.files, console)
-    if args.background_scale is not None or args.gaze is not None:
-        shape = pipeline.frame_shape(source)
-    if args.background_scale is not None:
-        _check_scale_fits(args.background_scale, shape)
-    if args.gaze is not None:
-        source = pipeline.with_gaze(source, args.gaze)
-        _warn_gaze_off_frame(source, shape, args.gaze, console)
-    # The nominal rate: frames split at a flash's edges are shorter, none longer.
-    fps = 1.0 / float(np.max(source.dt))
-    if "mp4" in formats and fps < MP4_MIN_FPS:
-        raise UsageError(
-            f"--fps: a video (--format mp4, a default) needs at least {MP4_MIN_FPS:g} frames/s, "
-            f"got {fps:g}; choose --format png, exr or pfm"
-        )
-    return source, formats, fps
 
 
 #: Unbleached fraction of the cone pigment below which a render warns (:func:`_warn_bleached`).
