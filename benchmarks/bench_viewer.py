@@ -10,8 +10,11 @@ waits between moving the eyes and seeing the frame that follows them.
 The sustained frame rate is the frames received over ``--seconds``, after
 two seconds of warm-up. Each row also times a frame's step and JPEG alone,
 in this process, which other work on the machine disturbs less, and with
-``--browser`` the frame rate for a page in Debian's headless Chromium on
-the same machine (which then shares its cores).
+``--browser`` a page in Debian's headless Chromium on the same machine
+(which then shares its cores), its pointer moving: the frame rate it gets,
+and the latency the page itself measures, from a pointer's sample sent to
+the animation frame after the frame that used it is drawn (the browser's
+decoding and painting included).
 
     python benchmarks/bench_viewer.py [--sizes 256x144 384x216 480x270]
                                       [--seconds 10] [--browser] [--label cpu-2core]
@@ -103,10 +106,31 @@ def measure(size, operator, scene, seconds, gaze_rate):
     }
 
 
-def browser_fps(size, operator, scene, seconds, window="900,560"):
-    """Frames/s the server sustains for a page in Debian's headless Chromium
-    (``/usr/bin/chromium``, through selenium) on the same machine: the mean
-    of ``/state``'s ``fps`` each second, after three seconds."""
+#: A pointer moving over the page's canvas, ``rate`` pointermove events a
+#: second (dispatched in the page, as a mouse's reach its script).
+POINTER = """
+const canvas = document.getElementById("view");
+let k = 0;
+window.probe = setInterval(function () {
+  const r = canvas.getBoundingClientRect();
+  k += 1;
+  canvas.dispatchEvent(new PointerEvent("pointermove", {
+    clientX: r.left + r.width * (0.2 + 0.6 * ((k * 0.37) % 1)),
+    clientY: r.top + r.height * (0.3 + 0.4 * ((k * 0.61) % 1)),
+    bubbles: true,
+  }));
+}, 1000 / arguments[0]);
+"""
+
+
+def browser(size, operator, scene, seconds, gaze_rate, window="900,560"):
+    """A page in Debian's headless Chromium (``/usr/bin/chromium``, through
+    selenium) on the same machine, its pointer moving (:data:`POINTER`):
+    the frames/s the server sustains for it (the mean of ``/state``'s
+    ``fps`` each second, after three seconds) and the page's own
+    gaze-to-frame latencies, ms (from a pointer's sample sent to the
+    animation frame after the frame that used it is drawn: the page's
+    ``latencies``)."""
     import tempfile
     import urllib.request
 
@@ -124,17 +148,25 @@ def browser_fps(size, operator, scene, seconds, window="900,560"):
     driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
     try:
         driver.get(url)
+        driver.execute_script(POINTER, gaze_rate)
         time.sleep(3.0)
+        driver.execute_script("window.jaxadapt.latencies.length = 0")
         rates = []
         for _ in range(int(seconds)):
             time.sleep(1.0)
             with urllib.request.urlopen(url + "state") as response:
                 rates.append(json.load(response)["fps"])
+        latencies = sorted(driver.execute_script("return window.jaxadapt.latencies.slice()"))
     finally:
         driver.quit()
         process.terminate()
         process.wait(30)
-    return statistics.mean(rates)
+    return {
+        "chromium_frames_per_s": statistics.mean(rates),
+        "chromium_latency_median_ms": statistics.median(latencies),
+        "chromium_latency_p95_ms": latencies[int(0.95 * (len(latencies) - 1))],
+        "chromium_gaze_samples": len(latencies),
+    }
 
 
 def stages(size, operator, scene, frames=30):
@@ -166,7 +198,9 @@ def main():
     parser.add_argument("--scene", default="patches")
     parser.add_argument("--label", default=None)
     parser.add_argument(
-        "--browser", action="store_true", help="also the frame rate for a page in Chromium"
+        "--browser",
+        action="store_true",
+        help="also the frame rate and the page's gaze-to-frame latency in Chromium",
     )
     args = parser.parse_args()
     load = os.getloadavg()[0]  # other work on the machine slows every row
@@ -175,8 +209,8 @@ def main():
     for run in runs:
         run["alone"] = stages(run["size"], run["operator"], args.scene)
         if args.browser:
-            run["chromium_frames_per_s"] = browser_fps(
-                run["size"], run["operator"], args.scene, args.seconds
+            run.update(
+                browser(run["size"], run["operator"], args.scene, args.seconds, args.gaze_rate)
             )
     for run in runs:
         print(
@@ -184,7 +218,13 @@ def main():
             f"gaze to frame {run['latency_median_ms']:.0f} ms (95 % {run['latency_p95_ms']:.0f}, "
             f"max {run['latency_max_ms']:.0f}); alone a frame's step {run['alone']['step_ms']:.1f} "
             f"ms, its JPEG {run['alone']['jpeg_ms']:.1f} ms"
-            + (f"; Chromium {run['chromium_frames_per_s']:.1f} frames/s" if args.browser else "")
+            + (
+                f"; Chromium {run['chromium_frames_per_s']:.1f} frames/s, gaze to frame drawn "
+                f"{run['chromium_latency_median_ms']:.0f} ms (95 % "
+                f"{run['chromium_latency_p95_ms']:.0f})"
+                if args.browser
+                else ""
+            )
         )
     record = {
         "machine": machine(args.label),

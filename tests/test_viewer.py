@@ -181,6 +181,22 @@ def test_gaze_in_state_follows_the_pointer(viewer, browser):
         assert frame["size"] == [W, H]
 
 
+def test_the_page_measures_gaze_to_frame_latency_and_shows_it(viewer, browser):
+    browser.execute_script("window.jaxadapt.latencies.length = 0")
+    first = browser.execute_script("return window.jaxadapt.gazeId")
+    for k in range(12):  # a pointer moving over the canvas, a sample a frame or so
+        _point(browser, 20 + 7 * k, 30 + 3 * k)
+        time.sleep(0.03)
+    latencies = _until(
+        lambda: browser.execute_script("return window.jaxadapt.latencies.slice()"), "latencies"
+    )
+    # each sample measured once, from its sending to a painted frame that used it or a newer one
+    sent = browser.execute_script("return window.jaxadapt.gazeId") - first
+    assert 1 <= len(latencies) <= sent
+    assert all(0 < ms < 10_000 for ms in latencies), latencies
+    _until(lambda: "gaze to frame" in browser.find_element("id", "overlay").text, "the overlay")
+
+
 def test_the_pointer_on_the_canvas_s_edge_pixels_is_on_the_frame(viewer, browser):
     """The canvas's outermost CSS pixels map to the frame's edge pixels, with
     no warning: the page maps its whole area into the frame."""

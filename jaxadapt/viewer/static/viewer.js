@@ -8,8 +8,12 @@
   const status = document.getElementById("status");
   const state = {
     frames: 0, header: null, size: [16, 9], paused: false, effects: [], resets: 0, trackers: 0,
-    gazeId: 0, errors: [], seen: [], closed: null,
+    // this page's gaze ids: numbers from a random base, so that two pages' ids differ
+    gazeId: 1e4 * Math.floor(Math.random() * 1e9), errors: [], seen: [], closed: null,
+    latencies: [], // ms from a pointer's gaze sent to the frame that uses it drawn, the last 600
   };
+  const firstId = state.gazeId + 1;
+  const sentAt = new Map(); // this page's gaze ids not yet seen in a frame: their performance.now()
   window.jaxadapt = state; // for tests and the curious
   const url = new URL("ws", location.href);
   url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
@@ -94,10 +98,36 @@
     status.textContent = notes.join("; ");
     if (header === null) { overlay.textContent = state.paused ? "paused" : "connecting..."; return; }
     const a = header.adaptation;
+    const latency = medianLatency();
     overlay.textContent =
       (state.paused ? "paused" : header.fps.toFixed(0) + " frames/s") + "  frame " + header.frame +
+      (latency === null ? "" : "  gaze to frame " + latency.toFixed(0) + " ms") +
       "\nadapted to " + (a >= 100 || a < 0.01 ? a.toExponential(2) : a.toFixed(2)) + " cd/m2\n" +
       "t = " + header.t.toFixed(2) + " s";
+  }
+
+  // Gaze-to-frame latency: each of this page's gaze samples up to the one
+  // a frame used, from its sending to the next animation frame after the
+  // frame is drawn (when the browser paints it). Frames that follow another
+  // page's pointer or a tracker measure nothing; a tracker's samples
+  // supersede this page's.
+  function measure(used) {
+    if (state.trackers > 0) { sentAt.clear(); return; }
+    if (typeof used !== "number" || used < firstId || used > state.gazeId) return;
+    requestAnimationFrame(function () {
+      const shown = performance.now();
+      for (const [id, sent] of sentAt) {
+        if (id > used) break; // (a Map keeps the order ids were sent in)
+        state.latencies.push(shown - sent);
+        sentAt.delete(id);
+      }
+      if (state.latencies.length > 600) state.latencies.splice(0, state.latencies.length - 600);
+    });
+  }
+
+  function medianLatency() {
+    const last = state.latencies.slice(-60).sort(function (a, b) { return a - b; });
+    return last.length === 0 ? null : last[Math.floor((last.length - 1) / 2)];
   }
 
   async function draw(buffer) {
@@ -113,6 +143,7 @@
     }
     context.drawImage(bitmap, 0, 0);
     bitmap.close();
+    measure(header.gaze_id);
     state.frames += 1;
     state.header = header;
     state.seen.push([header.frame, header.digest]); // the last frames drawn, for tests
@@ -160,7 +191,10 @@
     const x = framePixel(event.clientX, rect.left, rect.width, canvas.width);
     const y = framePixel(event.clientY, rect.top, rect.height, canvas.height);
     state.gazeId += 1;
-    send({ type: "gaze", x: x, y: y, id: state.gazeId, t: performance.now() / 1000 });
+    const now = performance.now();
+    if (sentAt.size > 1000) sentAt.delete(sentAt.keys().next().value); // (while paused)
+    sentAt.set(state.gazeId, now);
+    send({ type: "gaze", x: x, y: y, id: state.gazeId, t: now / 1000 });
   });
 
   function pause() { // (the server tells every page, this one included)
