@@ -52,8 +52,9 @@ def add_parser(sub):
 def _input_options():
     """The options of the input, the operator and its effects."""
     from jaxadapt.scenes import SCENES
-    from jaxadapt.viewer import DEFAULT_SCENE, DEFAULT_SIZE
+    from jaxadapt.viewer import DEFAULT_SCENE
     from jaxadapt.viewer._session import DEFAULT_OPERATOR, EFFECTS, VIEW_OPERATORS
+    from jaxadapt.viewer._sizing import LADDER, TARGET_FPS
 
     return (
         (("files",), dict(nargs="*", metavar="FILE", help="HDR input (EXR, HDR, PFM, float "
@@ -62,9 +63,10 @@ def _input_options():
             f"no FILE is given (default: {DEFAULT_SCENE})")),
         (("--operator",), dict(choices=VIEW_OPERATORS, default=DEFAULT_OPERATOR,
             help=f"the operator (default: {DEFAULT_OPERATOR})")),
-        (("--size",), dict(type=_size, default=DEFAULT_SIZE, metavar="WxH", help="largest "
-            "frame size rendered (default: {}x{}, which keeps 30 frames/s with jacobs2015 on "
-            "a 2-core CPU); FILEs are shrunk to fit, aspect kept".format(*DEFAULT_SIZE))),
+        (("--size",), dict(type=_size, default=None, metavar="WxH", help="largest frame "
+            "size rendered (default: the largest of {} that keeps {:g} frames/s on this "
+            "machine, measured at start-up); FILEs are shrunk to fit, aspect kept".format(
+                ", ".join(f"{w}x{h}" for w, h in LADDER), TARGET_FPS))),
         (("--multiplier",), dict(type=_positive, default=1.0, help="multiply input values by "
             "this to calibrate them to cd/m2 (default: 1)")),
         (("--fps",), dict(type=_frame_rate, default=None, help="frame rate of a FILE sequence "
@@ -102,7 +104,7 @@ def _spec(args):
     if not args.files and args.fps is not None:
         raise UsageError("--fps: applies to FILE input, not to a built-in scene")
     from jaxadapt.operators import OPERATORS
-    from jaxadapt.viewer._session import VIEW_OPERATORS
+    from jaxadapt.viewer._session import DEFAULT_SIZE, VIEW_OPERATORS
 
     supports = OPERATORS.supports(args.operator)
     for option, value, capability in (
@@ -115,7 +117,7 @@ def _spec(args):
 
     spec = {
         "operator": args.operator,
-        "size": list(args.size),
+        "size": list(args.size or DEFAULT_SIZE),
         "multiplier": args.multiplier,
         "seed": args.seed or 0,
     }
@@ -148,12 +150,29 @@ def view(args, console):
     if args.record is not None:
         Recorder.check(args.record)
     try:
+        if args.size is None:
+            spec["size"] = _fitting_size(spec, console)
         session = Session(spec)
     except MemoryError:
         raise UsageError("out of memory; try a smaller --size") from None
     token = None if is_loopback(args.host) else secrets.token_urlsafe(16)
     record = None if args.record is None else (lambda: Recorder(args.record, session.spec))
     asyncio.run(_serve(session, args, token, record, console))
+
+
+def _fitting_size(spec, console):
+    """The default ``--size``, measured here (:func:`jaxadapt.viewer.fitting_size`), said."""
+    from jaxadapt.viewer import TARGET_FPS, fitting_size
+
+    console.print(f"measuring the largest --size that keeps {TARGET_FPS:g} frames/s here")
+    (W, H), seconds = fitting_size(spec)
+    console.print(
+        f"--size {W}x{H}: a frame takes {1e3 * seconds:.0f} ms here"
+        + ("" if seconds <= 1 / TARGET_FPS else ", slower than asked, at the smallest size"),
+        markup=False,
+        highlight=False,
+    )
+    return [W, H]
 
 
 async def _serve(session, args, token, record, console):

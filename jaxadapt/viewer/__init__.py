@@ -22,8 +22,13 @@ from jaxadapt.viewer._session import (
     read_record,
     replay,
 )
+from jaxadapt.viewer._sizing import LADDER, TARGET_FPS, fitting_size, frame_seconds
 
 __all__ = [
+    "LADDER",
+    "TARGET_FPS",
+    "fitting_size",
+    "frame_seconds",
     "DEFAULT_SCENE",
     "DEFAULT_SIZE",
     "FIRST_DT",
