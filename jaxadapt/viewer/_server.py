@@ -15,6 +15,7 @@ import hmac
 import importlib.resources
 import logging
 import math
+import time
 
 from jaxadapt.viewer._addresses import bracketed, is_wildcard, machine_names, split_authority
 from jaxadapt.viewer._messages import (
@@ -190,7 +191,7 @@ class Server:
 
         sim = self.sim
         with sim.cond:
-            gaze = sim.gaze
+            gaze = sim.gaze_at(time.monotonic())[0]
         H, W = self.session.shape
         return web.json_response(
             {
