@@ -8,7 +8,7 @@
   const status = document.getElementById("status");
   const state = {
     frames: 0, header: null, size: [16, 9], paused: false, effects: [], resets: 0, trackers: 0,
-    gazeId: 0, errors: [], seen: [], closed: null,
+    lsl: null, gazeId: 0, errors: [], seen: [], closed: null,
   };
   window.jaxadapt = state; // for tests and the curious
   const url = new URL("ws", location.href);
@@ -58,12 +58,14 @@
   }
 
   // The view's state as the server tells every page (hello, then each
-  // change from any page): pause, effects, resets, trackers.
+  // change from any page): pause, effects, resets, trackers (and the LSL
+  // stream's name where one drives the gaze).
   function show(m) {
     state.paused = m.paused;
     state.effects = m.effects;
     state.resets = m.resets;
     state.trackers = m.trackers;
+    state.lsl = m.lsl;
     document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
     document.querySelectorAll("#effects input").forEach(function (input) {
       input.checked = state.effects.includes(input.id.slice("effect-".length));
@@ -82,7 +84,11 @@
       return;
     }
     const notes = [];
-    if (state.trackers > 0) notes.push("an eye tracker drives the gaze: the pointer is ignored");
+    if (state.trackers > 0) {
+      const which = state.lsl === null
+        ? "an eye tracker" : "the eye tracker of LSL stream \"" + state.lsl + "\"";
+      notes.push(which + " drives the gaze: the pointer is ignored");
+    }
     if (header !== null && header.slow && !state.paused) {
       const slow = header.slow;
       notes.push(
