@@ -2,6 +2,7 @@
 (:mod:`jaxadapt.viewer`)."""
 
 import argparse
+import math
 from pathlib import Path
 
 from jaxadapt.cli._options import (
@@ -31,17 +32,49 @@ def _port(text):
     return value
 
 
+def _span(text):
+    try:
+        w, h = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        w = h = math.nan
+    if not (0 < w < math.inf and 0 < h < math.inf):
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT, two positive numbers (1x1, 1920x1080), got {text!r}"
+        )
+    return w, h
+
+
+def _channels(text):
+    names = [n.strip() for n in text.split(",")]
+    if len(names) not in (2, 3) or not all(names):
+        raise argparse.ArgumentTypeError(
+            f"expected X,Y or X,Y,CONFIDENCE, channel labels or indices, got {text!r}"
+        )
+    return names
+
+
+def _fraction(text):
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got {text!r}")
+    return value
+
+
 def add_parser(sub):
     """Declare ``jaxadapt view`` and its options on the subparsers ``sub``."""
     parser = sub.add_parser(
         "view",
         help=COMMANDS["view"],
         description="Serve a page that shows the operator's frames live and takes the "
-        "pointer over them (or an eye tracker's samples sent to /gaze) as the gaze. The "
+        "pointer over them (or an eye tracker's samples, sent to /gaze or read from an "
+        "LSL stream) as the gaze. The "
         "simulation advances by the wall-clock time between frames, so adaptation and "
         "afterimages keep their real time course. Ctrl-C stops it.",
     )
-    for flags, kwargs in (*_input_options(), *_server_options()):
+    for flags, kwargs in (*_input_options(), *_server_options(), *_tracker_options()):
         parser.add_argument(*flags, **kwargs)
     parser.set_defaults(run=view)
 
@@ -97,6 +130,49 @@ def _server_options():
     )  # fmt: skip
 
 
+def _tracker_options():
+    """The options of an eye tracker's Lab Streaming Layer stream."""
+    from jaxadapt.viewer._lsl import MIN_CONFIDENCE, TIMEOUT
+
+    return (
+        (("--gaze-lsl",), dict(default=None, metavar="NAME", help="take the gaze from the eye "
+            "tracker's Lab Streaming Layer stream NAME (pip install 'jaxadapt[lsl]'); the "
+            "pointer is then ignored")),
+        (("--gaze-lsl-channels",), dict(type=_channels, default=None,
+            metavar="X,Y[,CONFIDENCE]", help="its channels of x, y and confidence, by label "
+            "or 0-based index (default: those its meta-data types ScreenX, ScreenY and "
+            "Confidence, else 0 and 1)")),
+        (("--gaze-lsl-span",), dict(type=_span, default=None, metavar="WxH", help="its x, y "
+            "at the frame's bottom-right corner, 0,0 being the top-left one (default: 1x1, "
+            "normalised; a screen's size, e.g. 1920x1080, for its pixels, the page full "
+            "screen)")),
+        (("--gaze-lsl-confidence",), dict(type=_fraction, default=None,
+            help="a sample of lower confidence is a lost eye, as a blink (default: "
+            f"{MIN_CONFIDENCE:g})")),
+        (("--gaze-lsl-timeout",), dict(type=_positive, default=None, metavar="S",
+            help=f"seconds to wait for the stream at start (default: {TIMEOUT:g})")),
+    )  # fmt: skip
+
+
+def _tracker(args):
+    """The opened :class:`~jaxadapt.viewer._lsl.Tracker` of ``--gaze-lsl``, or None."""
+    options = {
+        "timeout": args.gaze_lsl_timeout,
+        "channels": args.gaze_lsl_channels,
+        "span": args.gaze_lsl_span,
+        "min_confidence": args.gaze_lsl_confidence,
+    }
+    if args.gaze_lsl is None:
+        given = next((name for name, value in options.items() if value is not None), None)
+        if given is not None:
+            option = "--gaze-lsl-" + {"min_confidence": "confidence"}.get(given, given)
+            raise UsageError(f"{option}: applies with --gaze-lsl NAME")
+        return None
+    from jaxadapt.viewer._lsl import open_tracker
+
+    return open_tracker(args.gaze_lsl, **options)
+
+
 def _spec(args):
     """The session's spec (:class:`jaxadapt.viewer.Session`) of the checked options."""
     if args.files and args.scene is not None:
@@ -149,6 +225,7 @@ def view(args, console):
     spec = _spec(args)
     if args.record is not None:
         Recorder.check(args.record)
+    tracker = _tracker(args)  # (a stream not found: said before anything is written)
     try:
         if args.size is None:
             spec["size"] = _fitting_size(spec, console)
@@ -157,7 +234,7 @@ def view(args, console):
         raise UsageError("out of memory; try a smaller --size") from None
     token = None if is_loopback(args.host) else secrets.token_urlsafe(16)
     record = None if args.record is None else (lambda: Recorder(args.record, session.spec))
-    asyncio.run(_serve(session, args, token, record, console))
+    asyncio.run(_serve(session, args, token, record, console, tracker))
 
 
 def _fitting_size(spec, console):
@@ -175,7 +252,7 @@ def _fitting_size(spec, console):
     return [W, H]
 
 
-async def _serve(session, args, token, record, console):
+async def _serve(session, args, token, record, console, tracker=None):
     """Start the server (compile, then record), serve until a signal, stop.
 
     A signal while it starts ends the run as interrupted once the compile
@@ -209,7 +286,9 @@ async def _serve(session, args, token, record, console):
     def report(line):  # (simulated time falling behind, or keeping up again)
         console.print(line, markup=False, highlight=False)
 
-    server = Server(session, args.host, args.port, token, report)
+    server = Server(session, args.host, args.port, token, report, tracker)
+    if tracker is not None:
+        report(tracker.describe())
     W, H = session.shape[1], session.shape[0]
     console.print(f"compiling {args.operator} for {W}x{H} frames")
     try:

@@ -83,10 +83,14 @@ class Warnings:
     """The warnings of one client's samples, at most one each
     :data:`WARNING_INTERVAL` (those between counted, and said with the
     next), and a ``clear`` message once its samples are good again: a
-    flood of bad samples is not answered sample by sample."""
+    flood of bad samples is not answered sample by sample.
 
-    def __init__(self, ws):
-        self.ws, self.sent, self.suppressed, self.active = ws, -math.inf, 0, False
+    ``say(message, kind)``: a coroutine function that tells the client
+    (``kind`` "warning" or "clear"), :func:`socket_teller` for a socket's."""
+
+    def __init__(self, say):
+        self.say = say
+        self.sent, self.suppressed, self.active = -math.inf, 0, False
 
     async def warn(self, message):
         now = time.monotonic()
@@ -97,7 +101,7 @@ class Warnings:
         if self.suppressed:
             message += f" ({self.suppressed} more left unsaid in the last {now - self.sent:.1f} s)"
         self.sent, self.suppressed = now, 0
-        await send_error(self.ws, message, "warning")
+        await self.say(message, "warning")
 
     async def clear(self, message):
         """The samples are good again: say so, once, where a warning was due."""
@@ -105,7 +109,7 @@ class Warnings:
             if self.suppressed:
                 message += f" ({self.suppressed} more warnings left unsaid before)"
             self.active, self.suppressed = False, 0
-            await send_error(self.ws, message, "clear")
+            await self.say(message, "clear")
 
 
 def lag_message(slow, lag):
@@ -142,6 +146,11 @@ async def tell(ws, message):
 async def send_error(ws, message, kind="error"):
     """Tell a client what was wrong with its message (the socket stays open)."""
     await tell(ws, {"type": kind, "message": message})
+
+
+def socket_teller(ws):
+    """``say(message, kind)`` of :class:`Warnings` for a client's socket ``ws``."""
+    return lambda message, kind: send_error(ws, message, kind)
 
 
 def too_long(msg):

@@ -1,5 +1,6 @@
 """The live viewer's server: one page, its frames over a WebSocket, the gaze
-from the page's pointer or an external tracker, and ``/state``.
+from the page's pointer or an external tracker (on ``/gaze``, or an LSL
+stream: :mod:`~jaxadapt.viewer._lsl`), and ``/state``.
 
 The simulation runs in a thread of its own
 (:class:`~jaxadapt.viewer._simulation.Simulation`) and computes a frame
@@ -15,6 +16,7 @@ import hmac
 import importlib.resources
 import logging
 import math
+import time
 
 from jaxadapt.viewer._addresses import bracketed, is_wildcard, machine_names, split_authority
 from jaxadapt.viewer._messages import (
@@ -32,6 +34,7 @@ from jaxadapt.viewer._messages import (
     send_error,
     send_frame,
     short,
+    socket_teller,
     tell,
     too_long,
     warn_or_clear,
@@ -53,7 +56,7 @@ class Client:
     """A page connected to ``/ws``: its socket, frames in flight and warnings."""
 
     def __init__(self, ws):
-        self.ws, self.unacked, self.warnings = ws, 0, Warnings(ws)
+        self.ws, self.unacked, self.warnings = ws, 0, Warnings(socket_teller(ws))
 
 
 class Server:
@@ -70,13 +73,17 @@ class Server:
         Secret every request must carry as ``?token=``; None on loopback.
     report : callable or None
         Takes a line for the terminal: when simulated time starts to fall
-        behind the wall clock, and when it keeps up again.
+        behind the wall clock, and when it keeps up again; news of ``tracker``.
+    tracker : :class:`~jaxadapt.viewer._lsl.Tracker` or None
+        An eye tracker's LSL stream, opened: the gaze from the start (the
+        pointers ignored), its samples taken as those of ``/gaze``.
     """
 
-    def __init__(self, session, host="127.0.0.1", port=0, token=None, report=None):
+    def __init__(self, session, host="127.0.0.1", port=0, token=None, report=None, tracker=None):
         self.session, self.host, self.port, self.token = session, host, port, token
-        self.report, self.slow = report, None
+        self.report, self.slow, self.tracker = report, None, tracker
         self.clients, self.trackers = set(), set()
+        self.tracker_warnings = Warnings(self._say_of_tracker)
         # What every page shows, kept here (the simulation applies the
         # commands between frames, and none while paused)
         self.effects, self.resets, self.last_frame = set(session.effects), 0, None
@@ -120,6 +127,8 @@ class Server:
             await self.runner.cleanup()
             raise
         self.sim.start()
+        if self.tracker is not None:
+            self.tracker.start(self.session.shape, self._tracked_threadsafe, self._say_threadsafe)
         return self.urls()[0]
 
     def urls(self):
@@ -135,6 +144,8 @@ class Server:
         """Close the sockets, stop the simulation (its record completed) and unbind."""
         for ws in [c.ws for c in self.clients] + list(self.trackers):
             await ws.close(code=1001, message=b"server stopped")
+        if self.tracker is not None:
+            await asyncio.to_thread(self.tracker.stop)
         self.sim.stop()
         await asyncio.to_thread(self.sim.join)
         await self.runner.cleanup()
@@ -190,7 +201,7 @@ class Server:
 
         sim = self.sim
         with sim.cond:
-            gaze = sim.gaze
+            gaze = sim.gaze_at(time.monotonic())[0]
         H, W = self.session.shape
         return web.json_response(
             {
@@ -211,15 +222,17 @@ class Server:
 
     def view_state(self):
         """What every page shows alike: ``paused``, ``effects`` (those on,
-        or switched on for the next frame), ``resets`` (how many so far) and
-        ``trackers`` (connected to ``/gaze``: the pointers are then ignored)."""
+        or switched on for the next frame), ``resets`` (how many so far),
+        ``trackers`` (connected to ``/gaze``, or the LSL stream: the
+        pointers are then ignored) and ``lsl`` (that stream's name, or None)."""
         with self.sim.cond:
             paused = self.sim.paused
         return {
             "paused": paused,
             "effects": sorted(self.effects),
             "resets": self.resets,
-            "trackers": len(self.trackers),
+            "trackers": len(self.trackers) + (self.tracker is not None),
+            "lsl": None if self.tracker is None else self.tracker.name,
         }
 
     async def _tell_pages(self, change):
@@ -276,11 +289,9 @@ class Server:
                 client.unacked = max(0, client.unacked - 1)
                 self.sim.want()
             elif kind == "gaze":
-                if self.trackers:  # an external tracker drives the gaze
+                if self.trackers or self.tracker is not None:  # a tracker drives the gaze
                     return
-                gaze, warning = parse_gaze(message, self.session.shape)
-                self.sim.look(gaze, message.get("id"))
-                await warn_or_clear(client.warnings, warning)
+                await self._take(message, client.warnings)
             elif kind == "pause":
                 self.sim.command("pause", flag(message, "paused", True))
                 self.sim.want()
@@ -315,7 +326,7 @@ class Server:
         await ws.prepare(request)
         self.trackers.add(ws)
         await self._tell_pages("trackers")
-        warnings = Warnings(ws)
+        warnings = Warnings(socket_teller(ws))
         try:
             async for msg in ws:
                 if too_long(msg):
@@ -336,15 +347,41 @@ class Server:
         """Take one line of a tracker: its gaze, or an error naming the line."""
         try:
             sample = read_json(line)
-            gaze, warning = parse_gaze(sample, self.session.shape)
-            t = sample.get("t")
-            if t is not None and not (is_number(t) and math.isfinite(t)):
-                raise ValueError(f"t: expected a time in seconds, got {short(t, 30)}")
+            if isinstance(sample, dict):
+                t = sample.get("t")
+                if t is not None and not (is_number(t) and math.isfinite(t)):
+                    raise ValueError(f"t: expected a time in seconds, got {short(t, 30)}")
+            await self._take(sample, warnings)
         except Exception as error:  # a bad line (ValueError; any other: said as such)
             await send_error(ws, f"{reason(error)} (line {short(line)})")
-            return
-        self.sim.look(gaze, sample.get("id"))
+
+    async def _take(self, sample, warnings, at=None, hold=math.inf):
+        """Take a gaze sample ``{"x": px, "y": px}`` (of a page, ``/gaze`` or
+        the LSL stream) for the frames from ``at`` for ``hold`` s
+        (:meth:`Simulation.look`); its warning, if any, to ``warnings``. A
+        ValueError, before anything is taken, for a sample that is none."""
+        gaze, warning = parse_gaze(sample, self.session.shape)
+        self.sim.look(gaze, sample.get("id"), at, hold)
         await warn_or_clear(warnings, warning)
+
+    # -- the LSL stream (its thread hands its samples and news to the loop) --
+
+    def _tracked_threadsafe(self, points, at, hold):
+        asyncio.run_coroutine_threadsafe(self._tracked(points, at, hold), self.loop)
+
+    async def _tracked(self, points, at, hold):
+        for (x, y), t in zip(points.tolist(), at.tolist(), strict=True):
+            await self._take({"x": x, "y": y}, self.tracker_warnings, t, hold)
+
+    def _say_threadsafe(self, line):
+        asyncio.run_coroutine_threadsafe(self._say_of_tracker(line), self.loop)
+
+    async def _say_of_tracker(self, message, kind=None):
+        """Tell the terminal ``message`` about the LSL stream (``kind``:
+        "warning" or "clear" from its :class:`Warnings`)."""
+        if self.report is not None:
+            warning = "warning: " if kind == "warning" else ""
+            self.report(f"gaze-lsl {self.tracker.name!r}: {warning}{message}")
 
     # -- frames -----------------------------------------------------------
 

@@ -2,11 +2,13 @@
 :class:`~jaxadapt.viewer.Session` by the wall-clock time between frames,
 only when a page has room for a frame, and encodes each frame as JPEG."""
 
+import bisect
 import collections
 import io
 import math
 import threading
 import time
+from typing import NamedTuple
 
 from jaxadapt.viewer._session import FIRST_DT, MAX_DT
 
@@ -14,6 +16,20 @@ from jaxadapt.viewer._session import FIRST_DT, MAX_DT
 MAX_FPS = 60.0
 #: JPEG quality of the frames sent (Pillow's scale, 1-95).
 JPEG_QUALITY = 85
+#: Most gaze samples kept for the frames to come (a tracker's samples, at up
+#: to a few kHz, while the simulation is paused: the oldest go first).
+MAX_SAMPLES = 4096
+
+
+class Sample(NamedTuple):
+    """A gaze sample for the frames from time ``at`` (the server's clock,
+    :func:`time.monotonic`, s) until ``at + hold``: ``gaze`` ``(x, y)``
+    pixels (NaN: a blink) and the ``gaze_id`` its sender gave it."""
+
+    at: float
+    gaze: tuple
+    gaze_id: object
+    hold: float
 
 
 def encode_jpeg(pixels, quality=JPEG_QUALITY):
@@ -45,7 +61,7 @@ class Simulation(threading.Thread):
         self.cond = threading.Condition()
         self.wanted = self.paused = self.stopping = False
         self.commands = []
-        self.gaze, self.gaze_id = (math.nan, math.nan), None
+        self.samples = collections.deque()  # by time: the last frame's, then newer ones
         self.times = collections.deque()
         self.last = None
         self.error = None
@@ -68,10 +84,32 @@ class Simulation(threading.Thread):
                 self.commands.append(command)
             self.cond.notify()
 
-    def look(self, gaze, gaze_id=None):
-        """Take ``gaze`` (x, y pixels; NaN a blink) as the gaze of the next frame."""
+    def look(self, gaze, gaze_id=None, at=None, hold=math.inf):
+        """Take ``gaze`` (x, y pixels; NaN a blink) as the gaze from time ``at``
+        (the server's clock, :func:`time.monotonic`, s; default: now) on.
+
+        A frame takes the newest sample at or before its own time, so a
+        tracker's time-stamped samples reach the frames of their time, not
+        of their arrival; it has none (NaN, as in a blink) once that sample
+        is more than ``hold`` s old: a tracker that lost the eye."""
+        at = time.monotonic() if at is None else at
+        sample = Sample(at, gaze, gaze_id, hold)
         with self.cond:
-            self.gaze, self.gaze_id = gaze, gaze_id
+            if not self.samples or at >= self.samples[-1].at:
+                self.samples.append(sample)
+            else:
+                self.samples.insert(bisect.bisect_right(self.samples, at, key=_at), sample)
+            if len(self.samples) > MAX_SAMPLES:
+                self.samples.popleft()
+
+    def gaze_at(self, now):
+        """The gaze ``(x, y)`` and its id for a frame at time ``now``
+        (:meth:`look`); call with ``cond`` held."""
+        taken = bisect.bisect_right(self.samples, now, key=_at) - 1
+        sample = self.samples[taken] if taken >= 0 else None
+        if sample is None or now - sample.at > sample.hold:
+            return (math.nan, math.nan), None
+        return sample.gaze, sample.gaze_id
 
     def stop(self):
         with self.cond:
@@ -102,7 +140,7 @@ class Simulation(threading.Thread):
                 return False
             self.wanted = False
             commands, self.commands = self.commands, []
-            gaze, gaze_id, last = self.gaze, self.gaze_id, self.last
+            last = self.last
         for command in commands:
             if command[0] == "reset":
                 self.session.reset()
@@ -117,6 +155,9 @@ class Simulation(threading.Thread):
             self._keep_time(now - last - waited)
         with self.cond:
             self.last = now
+            gaze, gaze_id = self.gaze_at(now)
+            while len(self.samples) > 1 and self.samples[1].at <= now:
+                self.samples.popleft()  # (no later frame takes it)
         frame = self.session.advance(dt, gaze)
         if self.recorder is not None:
             self.recorder.write(frame)
@@ -154,3 +195,7 @@ class Simulation(threading.Thread):
             self._run = min(self._run, 0) - 1
             if self._run <= -2:
                 self.slow = None
+
+
+def _at(sample):
+    return sample.at

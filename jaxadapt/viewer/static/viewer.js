@@ -8,8 +8,9 @@
   const status = document.getElementById("status");
   const state = {
     frames: 0, header: null, size: [16, 9], paused: false, effects: [], resets: 0, trackers: 0,
+    lsl: null, errors: [], seen: [], closed: null,
     // this page's gaze ids: numbers from a random base, so that two pages' ids differ
-    gazeId: 1e4 * Math.floor(Math.random() * 1e9), errors: [], seen: [], closed: null,
+    gazeId: 1e4 * Math.floor(Math.random() * 1e9),
     latencies: [], // ms from a pointer's gaze sent to the frame that uses it drawn, the last 600
   };
   const firstId = state.gazeId + 1;
@@ -62,12 +63,14 @@
   }
 
   // The view's state as the server tells every page (hello, then each
-  // change from any page): pause, effects, resets, trackers.
+  // change from any page): pause, effects, resets, trackers (and the LSL
+  // stream's name where one drives the gaze).
   function show(m) {
     state.paused = m.paused;
     state.effects = m.effects;
     state.resets = m.resets;
     state.trackers = m.trackers;
+    state.lsl = m.lsl;
     document.getElementById("pause").textContent = state.paused ? "resume" : "pause";
     document.querySelectorAll("#effects input").forEach(function (input) {
       input.checked = state.effects.includes(input.id.slice("effect-".length));
@@ -86,7 +89,11 @@
       return;
     }
     const notes = [];
-    if (state.trackers > 0) notes.push("an eye tracker drives the gaze: the pointer is ignored");
+    if (state.trackers > 0) {
+      const which = state.lsl === null
+        ? "an eye tracker" : "the eye tracker of LSL stream \"" + state.lsl + "\"";
+      notes.push(which + " drives the gaze: the pointer is ignored");
+    }
     if (header !== null && header.slow && !state.paused) {
       const slow = header.slow;
       notes.push(
