@@ -100,9 +100,8 @@ def acuity_loss(params, frame, rho, X):
     scale it still resolves. We select that blur per pixel, which gives
     Eq 14's sum without forming the ``K`` band images, and compute a blur
     only where some pixel of the frame keeps it (a conditional on the
-    frame's set of ``d``): in photopic light none, in a dark room one or
-    two. Blurs of a non-negative frame are non-negative, so nothing
-    undershoots.
+    frame's set of ``d``): in photopic light none. Blurs of a non-negative
+    frame are non-negative, so nothing undershoots.
 
     Parameters
     ----------
