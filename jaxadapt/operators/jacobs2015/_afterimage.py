@@ -22,7 +22,7 @@ from jaxadapt.operators.jacobs2015._params import (
     PAPER_PIXELS_PER_DEGREE,
     Params,  # noqa: F401  (the examples)
 )
-from jaxadapt.operators.jacobs2015._planes import mix, planes, stacked
+from jaxadapt.operators.jacobs2015._planes import mix, planes, stacked, stored
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import channels_last_filter, discrete_gaussian_kernel
@@ -114,10 +114,12 @@ def afterimage_planes(params, response, B, C, rec, v):
     planes, ``v`` the visibility ``(H, W)``."""
     rec = Receptors(*rec)
     if params.local_adaptation:
-        gain = [
-            power(local_gain(params, c, c_inf), params.j2 * v)
-            for c, c_inf in zip(C, rec.C_inf, strict=True)
-        ]
+        gain = stored(
+            lambda: [
+                power(local_gain(params, c, c_inf), params.j2 * v)
+                for c, c_inf in zip(C, rec.C_inf, strict=True)
+            ]
+        )
         lms = [x * g for x, g in zip(mix(RGB_TO_LMS, response), gain, strict=True)]
         response = mix(LMS_TO_RGB, lms)
     if params.bleaching:
