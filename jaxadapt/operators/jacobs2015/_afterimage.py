@@ -172,14 +172,26 @@ def blur_maps(params, B, C, B_inf, C_inf):
     -0.015. The blurred maps are clipped to their ranges, ``B`` to [0, 1]
     and ``C`` to ``[0, C_max]``, as the kinetics keep them.
     """
+    B_inf, C_inf = jnp.broadcast_to(B_inf, B.shape), jnp.broadcast_to(C_inf, C.shape)
+    maps = blur_map_planes(params, *map(planes, (B, C, B_inf, C_inf)))
+    return tuple(map(stacked, maps))
+
+
+def blur_map_planes(params, B, C, B_inf, C_inf):
+    """:func:`blur_maps` on channel planes (:mod:`._planes`): each argument
+    and each result a list of three ``(H, W)`` planes."""
     if params.afterimage_blur == 0:
         return B, C
     taps = discrete_gaussian_kernel(params.afterimage_blur)
     C_max = params.c1 / params.c2
-    return (
-        jnp.clip(B_inf + channels_last_filter(B - B_inf, taps), 0.0, 1.0),
-        jnp.clip(C_inf + channels_last_filter(C - C_inf, taps), 0.0, C_max),
-    )
+
+    def blurred(maps, equilibria, top):
+        return [
+            jnp.clip(e + channels_last_filter(m - e, taps), 0.0, top)
+            for m, e in zip(maps, equilibria, strict=True)
+        ]
+
+    return blurred(B, B_inf, 1.0), blurred(C, C_inf, C_max)
 
 
 #: Frame rate at which the default ``afterimage_blur`` (1 pixel a frame, at

@@ -36,7 +36,7 @@ from jaxadapt.operators.jacobs2015._acuity import (
 )
 from jaxadapt.operators.jacobs2015._afterimage import (
     afterimage_planes,
-    blur_maps,
+    blur_map_planes,
     falloff,
     receptor_planes,
     receptors,
@@ -159,9 +159,7 @@ def _frame(params, state, frame, dt, sample):
     C_step = [
         kinetics.calcium_step(c, R, params.c1, params.c2, dt) for c, R in zip(C, rec.R, strict=True)
     ]
-    B_next, C_next = blur_maps(
-        params, stacked(B_step), stacked(C_step), stacked(rec.B_inf), stacked(rec.C_inf)
-    )
+    B_next, C_next = map(stacked, blur_map_planes(params, B_step, C_step, rec.B_inf, rec.C_inf))
     advanced = state._replace(
         A=A if params.global_adaptation else state.A,
         B=B_next,
