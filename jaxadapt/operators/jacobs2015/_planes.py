@@ -43,7 +43,12 @@ def stored(fn):
     channel. Computed under a conditional (always true, but not a
     constant XLA could fold away), the planes are stored once: the one
     boundary that backend keeps. Each plane is then a loop of its own, so
-    planes that share an expensive chain would each recompute it.
+    planes that share an expensive chain would each recompute it. Other
+    platforms compute ``fn()`` as it is (a GPU's conditional waits for
+    its predicate).
     """
     always = jax.lax.optimization_barrier(jnp.bool_(True))
-    return jax.lax.cond(always, fn, lambda: jax.tree.map(jnp.zeros_like, jax.eval_shape(fn)))
+    skipped = jax.tree.map(jnp.zeros_like, jax.eval_shape(fn))
+    return jax.lax.platform_dependent(
+        cpu=lambda: jax.lax.cond(always, fn, lambda: skipped), default=fn
+    )
