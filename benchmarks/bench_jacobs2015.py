@@ -1,38 +1,53 @@
 """Frames per second of the full Jacobs 2015 pipeline (gaze-aware afterimages and mesopic cues).
 
 Renders ``--frames`` float32 frames of the coloured-patch afterimage
-stimulus around its saccade (so that the retinal maps move), then times one
-jitted :func:`jaxadapt.operators.jacobs2015.run` over them with every effect
-on (compile excluded, ``block_until_ready``, median of repeats), and the
-same without the acuity loss, its costliest stage.
+stimulus around its saccade (so that the retinal maps move) at each
+``--sizes``, then times, with every effect on (compile excluded,
+``block_until_ready``, median of ``--repeats``):
+
+* ``stepped``: one jitted :func:`jaxadapt.operators.jacobs2015.step` a
+  frame, each call waiting for its frame, as the live viewer renders;
+* ``run``: one :func:`~jaxadapt.operators.jacobs2015.run` over the frames;
+* ``dark``: stepped, on the same frames dimmed 10,000 times (0.02 to 0.03
+  cd/m2, mesopic): the acuity loss then blurs (in photopic light it has
+  nothing to do and costs nothing).
+
+The process keeps freed memory (:func:`jaxadapt.runtime.retain_freed_memory`)
+as every ``jaxadapt`` command, the live viewer's included, does.
 
 The per-pixel state read and written each frame is the frame (3 floats),
 the L, M, S bleaching and calcium maps (6 floats, read and written) and the
 display frame (3 floats): 18 floats per pixel, the ``bytes_per_frame``
-against which a GPU's memory bandwidth bounds the frame rate.
+that a frame rate turns into a bandwidth, against the copy bandwidth of
+the same device measured in the same run (``copy_GB_per_s``, the peer).
 
 Usage::
 
-    python benchmarks/bench_jacobs2015.py [--size 1920x1080] [--frames 4] [--repeats 3]
-                                          [--label NAME]
+    python benchmarks/bench_jacobs2015.py [--sizes 384x216 960x540 1920x1080]
+                                          [--frames 8] [--repeats 5] [--label NAME]
 
 Writes ``benchmarks/results/jacobs2015_<label>.json`` (label by default the
 JAX backend).
 """
 
 import argparse
-import dataclasses
 import os
 
-import jax
-import jax.numpy as jnp
-import numpy as np
-from common import copy_bandwidth, machine, median_seconds, write_result
+from jaxadapt import runtime
 
-from jaxadapt import scenes
-from jaxadapt.operators import jacobs2015 as op
+runtime.retain_freed_memory()  # before the first JAX computation, as the CLI does
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from common import copy_bandwidth, machine, median_seconds, write_result  # noqa: E402
+
+from jaxadapt import scenes  # noqa: E402
+from jaxadapt.operators import jacobs2015 as op  # noqa: E402
 
 FPS = 30.0
+#: Dimming of the ``dark`` frames: 200-300 cd/m2 to 0.02-0.03, mesopic.
+DARK = 1e-4
 
 
 def patch_frames(width, height, count):
@@ -42,53 +57,87 @@ def patch_frames(width, height, count):
     return np.asarray(scene.render(times)), np.asarray(scene.gaze(times)), scene
 
 
+def time_stepped(params, frames, gaze, repeats):
+    """Median seconds a frame, one jitted ``step`` a call, waiting for each."""
+    dt = jnp.float32(1 / FPS)
+    start = op.init(params, frames[0], gaze=gaze[0], key=jax.random.key(0))
+
+    def go():
+        state = start
+        for k in range(frames.shape[0]):
+            state, out = op.step(params, state, frames[k], dt, gaze=gaze[k])
+            jax.block_until_ready(out)
+
+    return median_seconds(go, repeats=repeats) / frames.shape[0]
+
+
 def time_run(params, frames, gaze, repeats):
+    """Median seconds a frame of one ``run`` over ``frames``."""
     dt = jnp.float32(1 / FPS)
     key = jax.random.key(0)
 
     def go():
         jax.block_until_ready(op.run(params, frames, dt, gaze=gaze, key=key))
 
-    return median_seconds(go, repeats=repeats)
+    return median_seconds(go, repeats=repeats) / frames.shape[0]
+
+
+def measure(width, height, count, repeats, bandwidth):
+    """The record of one size: frames per second and bandwidth fractions."""
+    frames, gaze, scene = patch_frames(width, height, count)
+    frames = jax.device_put(jnp.asarray(frames, jnp.float32))
+    gaze = jax.device_put(jnp.asarray(gaze, jnp.float32))
+    params = op.Params(pixels_per_degree=scene.pixels_per_degree)
+    seconds = {
+        "stepped": time_stepped(params, frames, gaze, repeats),
+        "run": time_run(params, frames, gaze, repeats),
+        "dark": time_stepped(params, frames * DARK, gaze, repeats),
+    }
+    bytes_per_frame = 18 * 4 * width * height
+    record = {"size": [width, height], "bytes_per_frame": bytes_per_frame}
+    for name, s in seconds.items():
+        record[f"{name}_ms"] = 1e3 * s
+        record[f"{name}_fps"] = 1 / s
+        record[f"{name}_bandwidth_fraction"] = bytes_per_frame / s / bandwidth
+    return record
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", default="1920x1080", help="WIDTHxHEIGHT, pixels")
-    parser.add_argument("--frames", type=int, default=4)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--sizes",
+        "--size",
+        nargs="+",
+        default=["384x216", "960x540", "1920x1080"],
+        help="WIDTHxHEIGHT, pixels",
+    )
+    parser.add_argument("--frames", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--label", default=None, help="machine label in the record and file name")
     args = parser.parse_args()
-    width, height = (int(v) for v in args.size.split("x"))
 
-    frames, gaze, scene = patch_frames(width, height, args.frames)
-    frames = jax.device_put(jnp.asarray(frames, jnp.float32))
-    gaze = jax.device_put(jnp.asarray(gaze, jnp.float32))
-    full = op.Params(pixels_per_degree=scene.pixels_per_degree)
-    seconds = time_run(full, frames, gaze, args.repeats)
-    no_acuity = time_run(dataclasses.replace(full, acuity=False), frames, gaze, args.repeats)
-    bytes_per_frame = 18 * 4 * width * height
+    load_before = os.getloadavg()[0]  # other work sharing the machine
     bandwidth = copy_bandwidth()
+    sizes = []
+    for size in args.sizes:
+        width, height = (int(v) for v in size.split("x"))
+        sizes.append(measure(width, height, args.frames, args.repeats, bandwidth))
+        print(
+            f"{size}: stepped {sizes[-1]['stepped_fps']:.2f} frames/s, "
+            f"run {sizes[-1]['run_fps']:.2f}, dark {sizes[-1]['dark_fps']:.2f}",
+            flush=True,
+        )
     record = {
         "machine": machine(args.label),
-        "load_average_1min": os.getloadavg()[0],  # other work sharing the machine
-        "size": [width, height],
+        "load_average_1min": [load_before, os.getloadavg()[0]],  # before, after
         "frames": args.frames,
         "repeats": args.repeats,
-        "full_seconds": seconds,
-        "full_fps": args.frames / seconds,
-        "no_acuity_fps": args.frames / no_acuity,
-        "bytes_per_frame": bytes_per_frame,
-        "full_GB_per_s": bytes_per_frame * args.frames / seconds / 1e9,
+        "retained_freed_memory": True,
         "copy_GB_per_s": bandwidth / 1e9,
-        "bandwidth_fraction": bytes_per_frame * args.frames / seconds / bandwidth,
+        "sizes": sizes,
     }
     label = args.label or record["machine"]["backend"]
-    path = write_result(f"jacobs2015_{label}", record)
-    for key, value in record.items():
-        if key != "machine":
-            print(f"{key:>16}: {value}")
-    print(f"wrote {path}")
+    print(f"wrote {write_result(f'jacobs2015_{label}', record)}")
 
 
 if __name__ == "__main__":

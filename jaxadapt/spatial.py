@@ -15,6 +15,7 @@ __all__ = [
     "gaussian_kernel",
     "discrete_gaussian_kernel",
     "separable_filter",
+    "channels_last_filter",
     "LONG_KERNEL",
     "gaussian_blur",
     "as_image",
@@ -206,6 +207,55 @@ def _separable_filter(image, taps):
         default=lambda image: _filter_both_axes(image, taps),
     )
     return out.astype(image.dtype)
+
+
+def channels_last_filter(image, taps, when=None):
+    """:func:`separable_filter` of the first two axes of ``image (H, W, ...)``:
+    the same mirror-extended edges and taps along each axis, with the
+    channels (any trailing axes) left where a frame keeps them.
+
+    Each pass reads the mirror extension only at the ends
+    (:func:`_mirrored_pass`: no padded copy). The first pass runs under a
+    conditional, whose result XLA's CPU backend stores: otherwise it fuses
+    the first pass into the second and evaluates it once per tap of the
+    second, ``(2r + 1)^2`` products a value (a 1920x1080 RGB frame at 11
+    taps: 147 ms fused, 29 ms apart, 2 cores). The second pass fuses with
+    what the caller does with its result. ``when`` (a traced bool, by
+    default true) false skips the first pass on the CPU, for a caller
+    that then discards the result. Other platforms run both passes
+    without the conditional (not measured there; a GPU's conditional
+    waits for its predicate).
+    """
+    taps = np.asarray(taps)
+    if when is None:  # true, but not a constant XLA could fold the conditional away on
+        when = jax.lax.optimization_barrier(jnp.bool_(True))
+
+    rows = jax.lax.platform_dependent(
+        image,
+        cpu=lambda x: jax.lax.cond(when, lambda x: _mirrored_pass(x, taps, 1), lambda x: x, x),
+        default=lambda x: _mirrored_pass(x, taps, 1),
+    )
+    return _mirrored_pass(rows, taps, 0)
+
+
+def _mirrored_pass(x, taps, axis):
+    """One pass of ``taps`` along ``axis`` of ``x`` over its mirror extension:
+    the inside from slices of ``x`` itself, the ``r`` samples at each end
+    from the mirror indices of their neighbourhoods, joined. XLA's CPU
+    backend fuses the join into one loop; a gather over the whole axis
+    (or a padded copy) took 19.5 ms (11.6) for a pass along the rows of a
+    1090x1920 RGB strip at 11 taps, the joined pass 3.2 ms."""
+    r = (taps.shape[0] - 1) // 2
+    n = x.shape[axis]
+    taps = taps.astype(x.dtype)
+    index = _reflect_indices(n, r)
+    if n <= 4 * r:
+        return _shifted_sum(jnp.take(x, index, axis=axis), taps, axis)
+    first, last = (
+        _shifted_sum(jnp.take(x, ends, axis=axis), taps, axis)
+        for ends in (index[: 3 * r], index[-3 * r :])
+    )
+    return jnp.concatenate([first, _shifted_sum(x, taps, axis), last], axis=axis)
 
 
 def _filter_by_products(image, taps):

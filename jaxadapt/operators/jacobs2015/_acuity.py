@@ -14,8 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt.background import LUMINANCE_FLOOR
-from jaxadapt.color import transform
-from jaxadapt.spatial import gaussian_blur
+from jaxadapt.color import combine
+from jaxadapt.operators.jacobs2015._planes import planes
+from jaxadapt.spatial import channels_last_filter, gaussian_kernel
 
 # -- mesopic vision (Eqs 13-15) -----------------------------------------------
 
@@ -33,8 +34,9 @@ def normalised_log_luminance(params, L):
 def local_rho(params, frame):
     """rho (Eq 13) of the local photopic luminance: the frame's luminance
     blurred at the coarsest acuity scale. ``frame (H, W, 3)`` -> ``(H, W)``."""
-    L = gaussian_blur(transform(frame, params.w_P), acuity_sigmas(params)[-1])
-    return normalised_log_luminance(params, L)
+    L = combine(params.w_P, planes(frame))
+    taps = gaussian_kernel(acuity_sigmas(params)[-1])
+    return normalised_log_luminance(params, channels_last_filter(L, taps))
 
 
 def _interpolation_matrix(n, cell):
@@ -96,18 +98,10 @@ def acuity_loss(params, frame, rho, X):
     (``rho_step >= 0``), so a pixel drops its ``d`` finest bands, and what it
     keeps telescopes to ``blur_(d-1)``: the frame blurred at the finest
     scale it still resolves. We select that blur per pixel, which gives
-    Eq 14's sum without forming the ``K`` band images. Blurs of a
-    non-negative frame are non-negative, so nothing undershoots.
-
-    On the CPU the three colour planes are resolved one after another
-    (``lax.map``), so that the resolved frame is stored once: as one
-    vectorised expression, XLA's CPU backend fused the eight blurs (their
-    horizontal passes) into each of the three fusions of the tone map that
-    read the frame (luminance, colour ratios, colour) and computed them
-    three times: the acuity loss took 0.34 s of a 1920x1080 frame's 0.75 s,
-    and one plane at a time 0.12 s (the difference between the two frame
-    rates of ``benchmarks/bench_jacobs2015.py``, 2 cores). Other platforms
-    keep the vectorised form (the one measured on an H100).
+    Eq 14's sum without forming the ``K`` band images, and compute a blur
+    only where some pixel of the frame keeps it (a conditional on the
+    frame's set of ``d``): in photopic light none. Blurs of a non-negative
+    frame are non-negative, so nothing undershoots.
 
     Parameters
     ----------
@@ -123,16 +117,33 @@ def acuity_loss(params, frame, rho, X):
     array, (H, W, 3)
         The frame as resolved, cd/m2.
     """
+    return resolve(params, frame, *dropped_bands(params, rho, X))
+
+
+def dropped_bands(params, rho, X):
+    """How many of its finest bands each pixel drops (Eq 15), ``(H, W)``
+    int, and the set of those counts in the frame: bit ``d`` of the
+    ``uint32`` is set where some pixel drops ``d`` (one reduction for all
+    bands; counts past 31 set bit 31)."""
     visible = rho + params.g * X
     dropped = jnp.sum(visible[None] <= acuity_thresholds(params)[:, None, None], axis=0)
+    bits = jnp.left_shift(jnp.uint32(1), jnp.minimum(dropped, 31).astype(jnp.uint32))
+    present = jax.lax.reduce(bits, jnp.uint32(0), jax.lax.bitwise_or, tuple(range(bits.ndim)))
+    return dropped, present
 
-    def resolve(planes):
-        seen = planes
-        for f, sigma in enumerate(acuity_sigmas(params)):
-            seen = jnp.where(dropped > f, gaussian_blur(planes, sigma), seen)
-        return seen
 
-    planes = jax.lax.platform_dependent(
-        jnp.moveaxis(frame, -1, 0), cpu=lambda x: jax.lax.map(resolve, x), default=resolve
-    )
-    return jnp.moveaxis(planes, 0, -1)
+def resolve(params, frame, dropped, present):
+    """The frame blurred per pixel at the finest scale it resolves
+    (:func:`acuity_loss`), from :func:`dropped_bands`: each blur computed
+    only where some pixel keeps it."""
+    seen = frame
+    for f, sigma in enumerate(acuity_sigmas(params)):
+        keeps = dropped == f + 1  # the pixels that resolve blur f and no finer
+        needed = (present >> min(f + 1, 31)) & 1 == 1 if f < 30 else jnp.bool_(True)
+
+        def select(seen, keeps=keeps, needed=needed, sigma=sigma):
+            blurred = channels_last_filter(frame, gaussian_kernel(sigma), needed)
+            return jnp.where(keeps[..., None], blurred, seen)
+
+        seen = jax.lax.cond(needed, select, lambda seen: seen, seen)
+    return seen

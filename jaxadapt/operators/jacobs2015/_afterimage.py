@@ -17,14 +17,15 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS, transform
+from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS
 from jaxadapt.operators.jacobs2015._params import (
     PAPER_PIXELS_PER_DEGREE,
     Params,  # noqa: F401  (the examples)
 )
+from jaxadapt.operators.jacobs2015._planes import mix, planes, stacked, stored
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
-from jaxadapt.spatial import discrete_gaussian_kernel, separable_filter
+from jaxadapt.spatial import channels_last_filter, discrete_gaussian_kernel
 
 # -- afterimages (Eqs 4-12, §2.4) ---------------------------------------------
 
@@ -41,13 +42,19 @@ class Receptors(NamedTuple):
 def receptors(params, frame, sigma):
     """Cone excitations, equilibrium bleaching (Eq 6), responses (Eq 1) and
     equilibrium calcium (Eq 10) of a frame, for semi-saturation ``sigma``."""
-    lms = transform(frame, RGB_TO_LMS)
-    R = naka_rushton(lms, sigma, 1.0, params.n)
+    return Receptors(*map(stacked, receptor_planes(params, planes(frame), sigma)))
+
+
+def receptor_planes(params, rgb, sigma):
+    """:func:`receptors` on channel planes: ``rgb`` and each field a list of
+    three ``(H, W)`` planes (:mod:`._planes`)."""
+    lms = mix(RGB_TO_LMS, rgb)
+    R = [naka_rushton(I, sigma, 1.0, params.n) for I in lms]
     return Receptors(
         lms,
-        kinetics.cone_bleaching(lms, params.b1, params.b2).target,
+        [kinetics.cone_bleaching(I, params.b1[k], params.b2[k]).target for k, I in enumerate(lms)],
         R,
-        kinetics.calcium(R, params.c1, params.c2).target,
+        [kinetics.calcium(r, params.c1, params.c2).target for r in R],
     )
 
 
@@ -95,20 +102,38 @@ def afterimages(params, response, state, rec, visibility):
         The frame's photoreceptor inputs.
     visibility : array, (H, W)
     """
-    v = visibility[..., None]
+    channels = afterimage_planes(
+        params, planes(response), planes(state.B), planes(state.C), map(planes, rec), visibility
+    )
+    return stacked(channels)
+
+
+def afterimage_planes(params, response, B, C, rec, v):
+    """:func:`afterimages` on channel planes (:mod:`._planes`): ``response``,
+    ``B``, ``C`` and each field of ``rec`` lists of three ``(H, W)``
+    planes, ``v`` the visibility ``(H, W)``."""
+    rec = Receptors(*rec)
     if params.local_adaptation:
-        gain = power(local_gain(params, state.C, rec.C_inf), params.j2 * v)
-        response = transform(transform(response, RGB_TO_LMS) * gain, LMS_TO_RGB)
+        gain = stored(
+            lambda: [
+                power(local_gain(params, c, c_inf), params.j2 * v)
+                for c, c_inf in zip(C, rec.C_inf, strict=True)
+            ]
+        )
+        lms = [x * g for x, g in zip(mix(RGB_TO_LMS, response), gain, strict=True)]
+        response = mix(LMS_TO_RGB, lms)
     if params.bleaching:
-        excess = jnp.maximum(state.B - rec.B_inf, 0.0)
+        excess = [jnp.maximum(b - b_inf, 0.0) for b, b_inf in zip(B, rec.B_inf, strict=True)]
         if params.local_adaptation:
-            excess = excess * state.C * (params.c2 / params.c1)
-        response = response + params.j1 * v * transform(excess, params.H)
+            excess = [e * c * (params.c2 / params.c1) for e, c in zip(excess, C, strict=True)]
+        response = [
+            r + params.j1 * v * h for r, h in zip(response, mix(params.H, excess), strict=True)
+        ]
     return response
 
 
 def retinal_shift(maps, shift, fill):
-    """Move retina-locked maps ``(H, W, 3)`` by ``shift`` (dx, dy) whole pixels.
+    """Move retina-locked maps ``(H, W, ...)`` by ``shift`` (dx, dy) whole pixels.
 
     Pixel ``(y, x)`` takes the map's value at ``(y - dy, x - dx)``; pixels
     uncovered by the move (retina that was looking off screen) take their
@@ -122,7 +147,7 @@ def retinal_shift(maps, shift, fill):
     x = jnp.arange(W) - shift[0]
     moved = jnp.take(jnp.take(maps, jnp.clip(y, 0, H - 1), axis=0), jnp.clip(x, 0, W - 1), axis=1)
     inside = ((y >= 0) & (y < H))[:, None] & ((x >= 0) & (x < W))[None, :]
-    return jnp.where(inside[..., None], moved, fill)
+    return jnp.where(inside.reshape(inside.shape + (1,) * (maps.ndim - 2)), moved, fill)
 
 
 def blur_maps(params, B, C, B_inf, C_inf):
@@ -147,18 +172,26 @@ def blur_maps(params, B, C, B_inf, C_inf):
     -0.015. The blurred maps are clipped to their ranges, ``B`` to [0, 1]
     and ``C`` to ``[0, C_max]``, as the kinetics keep them.
     """
+    B_inf, C_inf = jnp.broadcast_to(B_inf, B.shape), jnp.broadcast_to(C_inf, C.shape)
+    maps = blur_map_planes(params, *map(planes, (B, C, B_inf, C_inf)))
+    return tuple(map(stacked, maps))
+
+
+def blur_map_planes(params, B, C, B_inf, C_inf):
+    """:func:`blur_maps` on channel planes (:mod:`._planes`): each argument
+    and each result a list of three ``(H, W)`` planes."""
     if params.afterimage_blur == 0:
         return B, C
-    both = jnp.concatenate([B - B_inf, C - C_inf], axis=-1)
-    blurred = separable_filter(
-        jnp.moveaxis(both, -1, 0), discrete_gaussian_kernel(params.afterimage_blur)
-    )
-    blurred = jnp.moveaxis(blurred, 0, -1)
+    taps = discrete_gaussian_kernel(params.afterimage_blur)
     C_max = params.c1 / params.c2
-    return (
-        jnp.clip(B_inf + blurred[..., :3], 0.0, 1.0),
-        jnp.clip(C_inf + blurred[..., 3:], 0.0, C_max),
-    )
+
+    def blurred(maps, equilibria, top):
+        return [
+            jnp.clip(e + channels_last_filter(m - e, taps), 0.0, top)
+            for m, e in zip(maps, equilibria, strict=True)
+        ]
+
+    return blurred(B, B_inf, 1.0), blurred(C, C_inf, C_max)
 
 
 #: Frame rate at which the default ``afterimage_blur`` (1 pixel a frame, at

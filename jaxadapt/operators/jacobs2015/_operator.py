@@ -14,7 +14,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxadapt.background import LUMINANCE_CEILING
-from jaxadapt.display import dither
 from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators.checks import (
     as_dtype,
@@ -29,11 +28,17 @@ from jaxadapt.operators.checks import (
     raise_verdict,
     saturate,
 )
-from jaxadapt.operators.jacobs2015._acuity import acuity_loss, acuity_noise, local_rho
+from jaxadapt.operators.jacobs2015._acuity import (
+    acuity_noise,
+    dropped_bands,
+    local_rho,
+    resolve,
+)
 from jaxadapt.operators.jacobs2015._afterimage import (
-    afterimages,
-    blur_maps,
+    afterimage_planes,
+    blur_map_planes,
     falloff,
+    receptor_planes,
     receptors,
     retinal_shift,
 )
@@ -41,12 +46,14 @@ from jaxadapt.operators.jacobs2015._params import (
     CHANNEL_FIELDS,
     Params,  # noqa: F401  (the examples)
 )
+from jaxadapt.operators.jacobs2015._planes import planes, stacked
 from jaxadapt.operators.jacobs2015._state import Diagnostics, State
 from jaxadapt.operators.jacobs2015._tone import (
     adaptation_target,
+    dither_planes,
     encode,
     semi_saturation,
-    tone_map,
+    tone_planes,
 )
 from jaxadapt.physiology import kinetics
 
@@ -102,48 +109,76 @@ def _check_key(params, key):
 def _frame(params, state, frame, dt, sample):
     """Show ``frame`` to the viewer in ``state``; return the next state, the
     display frame and the frame's record (:class:`Diagnostics` without
-    ``final_state``). The whole operator is this map."""
+    ``final_state``). The whole operator is this map.
+
+    The per-pixel work is written on channel planes (:mod:`._planes`); the
+    maps are read through the gaze's shift (:func:`retinal_shift`, a
+    gather fused into their readers), and where no pixel loses acuity the
+    display is computed from the frame itself (a conditional on the whole
+    frame), not from a copy of it.
+    """
     shape = frame.shape[:2]
     frame = saturate(frame)
+    rgb = planes(frame)
     gaze = fixation(sample, state.gaze, shape)
     sigma = semi_saturation(params, state.A)
-    rec = receptors(params, frame, sigma)
+    rec = receptor_planes(params, rgb, sigma)
     shift = _pixel(gaze) - _pixel(state.gaze)
-    B = retinal_shift(state.B, shift, rec.B_inf)
-    C = retinal_shift(state.C, shift, rec.C_inf)
-    seen = state._replace(B=B, C=C, gaze=gaze)
-
+    B = [retinal_shift(b, shift, fill) for b, fill in zip(planes(state.B), rec.B_inf, strict=True)]
+    C = [retinal_shift(c, shift, fill) for c, fill in zip(planes(state.C), rec.C_inf, strict=True)]
     rho = local_rho(params, frame)
-    key_noise, key_dither = (jax.random.fold_in(seen.key, i) for i in range(2))
-    scene = frame
+    visibility = falloff(params, shape, gaze)
+    key_noise, key_dither = (jax.random.fold_in(state.key, i) for i in range(2))
+    seed = jax.random.bits(jax.random.fold_in(key_dither, state.frame), (2,), jnp.uint32)
+
+    def shown(scene):
+        response = tone_planes(params, scene, rho, sigma)
+        response = afterimage_planes(params, response, B, C, rec, visibility)
+        J = [encode(params, x) for x in response]
+        if params.dithering:
+            J = dither_planes(params, J, seed)
+        return stacked(J)
+
     if params.acuity:
-        X = acuity_noise(params, key_noise, seen.t, shape)
-        scene = acuity_loss(params, frame, rho, X)
-    response = tone_map(params, scene, rho, sigma)
-    response = afterimages(params, response, seen, rec, falloff(params, shape, gaze))
-    J = encode(params, response)
-    if params.dithering:
-        J = dither(J, jax.random.fold_in(key_dither, seen.frame), params.levels)
+        X = acuity_noise(params, key_noise, state.t, shape)
+        dropped, present = dropped_bands(params, rho, X)
+        J = jax.lax.cond(
+            present > 1,
+            lambda: shown(planes(resolve(params, frame, dropped, present))),
+            lambda: shown(rgb),
+        )
+    else:
+        J = shown(rgb)
 
     A_T = adaptation_target(params, frame, gaze)
-    A = kinetics.log_adaptation_step(seen.A, A_T, params.a1, params.a2, dt)
-    B_next, C_next = blur_maps(
-        params,
-        kinetics.cone_bleaching_step(B, rec.lms, params.b1, params.b2, dt),
-        kinetics.calcium_step(C, rec.R, params.c1, params.c2, dt),
-        rec.B_inf,
-        rec.C_inf,
-    )
-    advanced = seen._replace(
-        A=A if params.global_adaptation else seen.A,
+    A = kinetics.log_adaptation_step(state.A, A_T, params.a1, params.a2, dt)
+    B_step = [
+        kinetics.cone_bleaching_step(b, I, params.b1[k], params.b2[k], dt)
+        for k, (b, I) in enumerate(zip(B, rec.lms, strict=True))
+    ]
+    C_step = [
+        kinetics.calcium_step(c, R, params.c1, params.c2, dt) for c, R in zip(C, rec.R, strict=True)
+    ]
+    B_next, C_next = map(stacked, blur_map_planes(params, B_step, C_step, rec.B_inf, rec.C_inf))
+    advanced = state._replace(
+        A=A if params.global_adaptation else state.A,
         B=B_next,
         C=C_next,
-        t=seen.t + dt,
-        frame=seen.frame + 1,
+        gaze=gaze,
+        t=state.t + dt,
+        frame=state.frame + 1,
     )
     gx, gy = _pixel(gaze)
     record = Diagnostics(
-        seen.t, seen.A, A_T, sigma, gaze, B[gy, gx], C[gy, gx], rho[gy, gx], final_state=None
+        state.t,
+        state.A,
+        A_T,
+        sigma,
+        gaze,
+        jnp.stack([b[gy, gx] for b in B]),
+        jnp.stack([c[gy, gx] for c in C]),
+        rho[gy, gx],
+        final_state=None,
     )
     return advanced, J, record
 
