@@ -182,6 +182,11 @@ def test_gaze_in_state_follows_the_pointer(viewer, browser):
 
 
 def test_the_page_measures_gaze_to_frame_latency_and_shows_it(viewer, browser):
+    # a frame that used this page's last sample takes with it every sample sent before
+    _point(browser, 10, 10)
+    last = "const j = window.jaxadapt; return j.header !== null && j.header.gaze_id === j.gazeId"
+    _until(lambda: browser.execute_script(last), "a frame of the last sample")
+    time.sleep(0.2)  # (its latency is taken at the next animation frame)
     browser.execute_script("window.jaxadapt.latencies.length = 0")
     first = browser.execute_script("return window.jaxadapt.gazeId")
     for k in range(12):  # a pointer moving over the canvas, a sample a frame or so
