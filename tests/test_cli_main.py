@@ -12,9 +12,6 @@ from cli_runs import SMALL, assert_one_line_error, run
 
 from jaxadapt.cli import main
 
-#: End-to-end or long: left out of the quick run (pytest -m "not slow").
-pytestmark = pytest.mark.slow
-
 
 def _start(*argv, ignored=()):
     """``python -m jaxadapt ARGV`` started in a process of its own with the
@@ -48,6 +45,7 @@ def test_gaze_and_trial_files_that_are_not_text_are_named(tmp_path, capsys):
     assert_one_line_error(status, err, str(tmp_path), "folder")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "signum, command",
     [
@@ -89,6 +87,7 @@ def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command
     assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
     # Sent once frames are being written behind while later chunks are
     # read ahead and computed: the interrupt reaches the main thread, the
@@ -109,6 +108,11 @@ def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+# In the full run only: now and then, on a loaded machine, the signal lands
+# while a nanobind extension module initialises (JAX's, imported with
+# jaxadapt.scenes as the parser is built), and the process aborts
+# (nanobind::python_error, status -6) instead of saying its one line.
+@pytest.mark.slow
 @pytest.mark.parametrize("delay", [0.5, 1.2])
 def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
     # Sent while the program imports JAX and parses its arguments, before
@@ -171,6 +175,7 @@ def test_a_signal_after_the_command_leaves_its_status(tmp_path):
     assert (process.returncode, stderr) == (0, "")
 
 
+@pytest.mark.slow
 def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
     # Handled as an interrupt, SIGHUP ended a `nohup jaxadapt render` when
     # its terminal closed.

@@ -13,9 +13,6 @@ from scipy.stats import mannwhitneyu
 
 from jaxadapt.cli import main
 
-#: End-to-end or long: left out of the quick run (pytest -m "not slow").
-pytestmark = pytest.mark.slow
-
 
 def _fit_rows(capsys, rows, folder, *options):
     """``psychometric fit`` of a table of ``rows`` (lines), written to
@@ -39,6 +36,7 @@ def _simulated_rows(participants, shifts, levels, sigma, seed):
     return rows
 
 
+@pytest.mark.slow
 def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     levels = np.log10(np.array([14, 19, 27, 35, 49]) / 27)  # the afterimage protocol
     rows = ["participant,condition,level,n_yes,n_total"]
@@ -114,6 +112,7 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert "its PSE and slope in fits.csv are NaN" in said
 
 
+@pytest.mark.slow
 def test_many_undetermined_groups_are_counted_not_listed(tmp_path, capsys):
     # 10,000 groups of simulated data wrote a warning line for each that
     # the data did not determine: thousands of lines.
@@ -126,6 +125,7 @@ def test_many_undetermined_groups_are_counted_not_listed(tmp_path, capsys):
     assert sum(line.startswith("warning: participant") for line in lines) == 10
 
 
+@pytest.mark.slow
 def test_results_on_stdout_warnings_on_stderr_csvs_with_lf(tmp_path, capsys):
     # Every summary went to stderr with the warnings; the console wrapped
     # lines at 80 columns, inside numbers ("p = \\n0.371"); CSVs had CRLF ends.
@@ -212,6 +212,7 @@ def test_out_of_memory_names_what_to_make_smaller(tmp_path, capsys, monkeypatch)
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
     # "no" up to 0, "yes" from 0.15: any PSE between fits. The bootstrap of
     # the prior's near-step curve gave (0.055, 0.094) and no warning; data
@@ -229,6 +230,7 @@ def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
     assert "p1, condition control: the levels separate" in said and "+0 and +0.15" in said
 
 
+@pytest.mark.slow
 def test_undetermined_fits_are_nan_and_left_out_of_the_group_test(tmp_path, capsys):
     # p0's control answers are all "yes" at one level: written as pse
     # -503161, sigma 141421, b1 0, converged true. p1's control is
@@ -279,6 +281,7 @@ def _fit_in_float32(capsys, rows, folder):
     assert status == 0, err
 
 
+@pytest.mark.slow
 def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
     # 3,000 trials a level: in float32 (the command's precision before, as
     # JAX's default) the log-likelihood was 0.01 off statsmodels' (binomial
@@ -298,6 +301,7 @@ def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
     assert float(row["b1"]) == pytest.approx(glm.params[1], rel=1e-8)
 
 
+@pytest.mark.slow
 def test_psychometric_group_test_p_is_float64(tmp_path, capsys):
     # 170 participants whose PSEs separate the conditions completely: z =
     # 15.9, p = 7.6e-57 (SciPy's mannwhitneyu), which the group test, run in
@@ -346,6 +350,7 @@ def test_pse_figure_spans_the_placed_pses(tmp_path):
     assert (tmp_path / "pse.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_figures_draw_any_condition_name_without_warnings(tmp_path, capsys):
     # Unicode names fitted right but printed 26 lines of matplotlib's
     # "Glyph ... missing" and drew empty boxes. A character no installed
@@ -395,6 +400,7 @@ def test_psychometric_simulate_checks_out_before_simulating(tmp_path, capsys, mo
     assert target.read_text() == "kept"
 
 
+@pytest.mark.slow
 def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
     sim, out = tmp_path / "sim", tmp_path / "fit"
     args = ["psychometric", "simulate", "--protocol", "afterimage", "--observers", "6"]
@@ -426,6 +432,7 @@ def test_psychometric_simulate_writes_a_table_that_fit_reads(tmp_path, capsys):
     assert not [p for p in sim.iterdir() if p.name.startswith(".")]  # no staging left
 
 
+@pytest.mark.slow
 def test_psychometric_simulate_streams_observers_in_blocks(tmp_path, capsys, monkeypatch):
     # The observers go in blocks, each written before the next is
     # simulated (memory flat in their number), and the files are the same.

@@ -19,10 +19,8 @@ from jaxadapt.cli import main
 from jaxadapt.cli._output import _message
 from jaxadapt.operators import pattanaik2000 as op
 
-#: End-to-end or long: left out of the quick run (pytest -m "not slow").
-pytestmark = pytest.mark.slow
 
-
+@pytest.mark.slow
 def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, capsys):
     out = tmp_path / "out"
     status, _ = run(capsys, "render", "--scene", "title-step", *SMALL, "--out", str(out))
@@ -49,6 +47,7 @@ def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, 
     assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".jaxadapt-render"]
 
 
+@pytest.mark.slow
 def test_tunnel_scene_chunks_give_the_same_as_one_call(tmp_path, capsys):
     a, b = tmp_path / "a", tmp_path / "b"
     args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "1", "--format", "exr"]
@@ -60,6 +59,7 @@ def test_tunnel_scene_chunks_give_the_same_as_one_call(tmp_path, capsys):
         )
 
 
+@pytest.mark.slow
 def test_hdr_files_in_and_linear_files_out(tmp_path, capsys):
     frames = [np.full((6, 8, 3), v, np.float32) for v in (0.01, 100.0, 100.0)]
     paths = []
@@ -88,6 +88,7 @@ def test_hdr_files_in_and_linear_files_out(tmp_path, capsys):
     assert float(rows[2]["t"]) == pytest.approx(0.2)
 
 
+@pytest.mark.slow
 def test_a_video_ffmpeg_cannot_write_fails_the_run(tmp_path, capsys):
     # H.264 is at most 16,384 pixels wide. imageio-ffmpeg's writer does not
     # check ffmpeg's exit status: the run said it had written video.mp4, of
@@ -136,6 +137,7 @@ def test_negative_values_get_the_options_own_message(tmp_path, capsys, argv, wor
     assert "expected one argument" not in err
 
 
+@pytest.mark.slow
 def test_a_render_larger_than_the_limit_or_the_disk_is_refused(tmp_path, capsys, monkeypatch):
     # 20 million frames at --fps 1e6 were accepted: hours and about 80 GB.
     out = tmp_path / "o"
@@ -216,6 +218,7 @@ def test_bad_values_are_counted_and_located(tmp_path, capsys):
     assert "clamp" not in err
 
 
+@pytest.mark.slow
 def test_fps_takes_a_fraction(tmp_path, capsys):
     # 24000/1001, as video rates are written, was refused.
     image = tmp_path / "in.exr"
@@ -227,6 +230,7 @@ def test_fps_takes_a_fraction(tmp_path, capsys):
     assert float(rows[1]["t"]) == pytest.approx(1001 / 24000)
 
 
+@pytest.mark.slow
 def test_pixels_per_degree_is_taken_within_its_range(tmp_path, capsys):
     # 1e-6 stopped the tunnel's render with a traceback (non-finite display
     # frames: the foveal weights, now fixed), and jacobs2015 ran for minutes
@@ -244,6 +248,7 @@ def test_pixels_per_degree_is_taken_within_its_range(tmp_path, capsys):
     assert np.isfinite(io.read_hdr(out / "frame_00000.exr")).all()
 
 
+@pytest.mark.slow
 def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_path, capsys):
     # 1e9 on a 1x1 frame took the machine's 24 GB; 1e5 on 64x48, 677 MB.
     out = tmp_path / "o"
@@ -257,6 +262,7 @@ def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_pa
     assert status == 0
 
 
+@pytest.mark.slow
 def test_a_frame_rate_too_low_for_a_video_is_refused_before_the_render(tmp_path, capsys):
     # ffmpeg failed to write it after the whole render.
     image = tmp_path / "in.exr"
@@ -278,6 +284,7 @@ def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
     assert_one_line_error(status, err, "bright.exr", "multiplier")
 
 
+@pytest.mark.slow
 def test_a_render_whose_cone_pigment_is_all_but_bleached_says_so(tmp_path, capsys):
     # Frames of 1e12 cd/m2 (or frames in other units, 1e28) rendered a frame
     # of the display's black without a word: the model's prediction (the
@@ -297,6 +304,7 @@ def test_a_render_whose_cone_pigment_is_all_but_bleached_says_so(tmp_path, capsy
             assert io.read_hdr(out / "frame_00000.exr").max() < 0.05  # near black, finite
 
 
+@pytest.mark.slow
 def test_a_check_inside_the_operator_gives_its_own_message(tmp_path, capsys):
     args = ["render", "--scene", "title-step", *SMALL, "--multiplier", "1e38"]
     status, err = run(capsys, *args, "--out", str(tmp_path / "o"))
@@ -337,6 +345,7 @@ def test_options_that_would_be_ignored_are_refused(tmp_path, capsys, args, optio
     assert_one_line_error(status, err, option)
 
 
+@pytest.mark.slow
 def test_fps_sets_the_frame_rate_of_a_builtin_scene(tmp_path, capsys):
     out = tmp_path / "out"
     args = ["render", "--scene", "flash", "--size", "16x16", "--duration", "0.5", "--fps", "10"]
@@ -358,6 +367,7 @@ def test_help_explains_every_option(capsys):
         assert option in text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "operator, background",
     [("photographic", "global"), ("ward-jnd", "adaptive"), ("pattanaik2000", "bilateral")],
@@ -376,6 +386,7 @@ def test_operators_and_backgrounds(tmp_path, capsys, operator, background):
     assert ("background" in rows[0]) == (operator != "pattanaik2000")
 
 
+@pytest.mark.slow
 def test_jacobs2015_follows_a_recorded_gaze(tmp_path, capsys):
     gaze = tmp_path / "gaze.csv"
     gaze.write_text("t,x,y\n0,5,4\n0.1,nan,nan\n0.15,25,12\n")
@@ -402,6 +413,7 @@ def test_jacobs2015_follows_a_recorded_gaze(tmp_path, capsys):
     assert [float(r["gaze_x"]) for r in rows] == [5, 5, 5, 31, 31, 31]
 
 
+@pytest.mark.slow
 def test_a_blink_in_the_gaze_holds_the_fixation_for_pattanaik2000(tmp_path, capsys):
     # The foveal goal during a blink is the one at the fixation before it
     # (the recorded path holds it), not NaN and not black frames after it.
@@ -427,6 +439,7 @@ def test_a_blink_in_the_gaze_holds_the_fixation_for_pattanaik2000(tmp_path, caps
         )
 
 
+@pytest.mark.slow
 def test_a_gaze_file_of_blinks_alone_is_warned_about(tmp_path, capsys):
     # Every sample a blink: the frame's centre was used without a word.
     gaze = tmp_path / "gaze.csv"
@@ -486,6 +499,7 @@ def test_contact_sheet_labels_each_frame():
         figures.contact_sheet(np.zeros((3, 20, 60, 3), np.uint8), labels=["a", "b"])
 
 
+@pytest.mark.slow
 def test_the_contact_sheet_spans_the_sequence(tmp_path, capsys, monkeypatch):
     # The tunnel's 12 tiles span the drive, from its first to its last
     # frame, few in its first second and one on the exit.
@@ -505,6 +519,7 @@ def test_the_contact_sheet_spans_the_sequence(tmp_path, capsys, monkeypatch):
     assert any(12 < t < 15 for t in times), times  # the tunnel's exit
 
 
+@pytest.mark.slow
 def test_the_2015_diagnostics_plot_has_units_and_says_why_a_is_flat(tmp_path):
     # A and A_T sat at the 100 cd/m2 floor and rho ran to 2.7 with nothing
     # on the plot saying why; its y axes had no units.
@@ -575,6 +590,7 @@ def test_figures_name_what_they_cannot_draw(name, args, message):
         getattr(figures, name)(*args)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("numbers", "warned"),
     [
@@ -611,6 +627,7 @@ def _exr_at_rate(path, rate):
     out.close()
 
 
+@pytest.mark.slow
 def test_files_play_at_the_rate_their_header_gives(tmp_path, capsys):
     # A 23.976 fps EXR sequence was simulated at 30 fps: the adaptation ran
     # 25 % fast. The first file's FramesPerSecond is now the default.
@@ -649,6 +666,7 @@ def _stream_threads():
     return [t for t in threading.enumerate() if t.name.startswith("jaxadapt-")]
 
 
+@pytest.mark.slow
 def test_a_streamed_render_gives_the_frames_and_diagnostics_of_a_plain_loop(tmp_path, capsys):
     # Reading ahead and writing behind in threads change nothing: the frames
     # and diagnostics are those of the operator called chunk after chunk.
@@ -686,6 +704,7 @@ def _gradient_frames(T, H=12, W=20):
     return (rng.uniform(0.5, 2.0, (T, H, W, 3)) * level).astype(np.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stage", ["read", "write"])
 def test_an_error_mid_stream_stops_the_render_and_joins_its_threads(
     tmp_path, capsys, monkeypatch, stage

@@ -18,9 +18,6 @@ from cli_runs import SMALL, assert_one_line_error, run
 from jaxadapt import _signals, io, pipeline
 from jaxadapt.cli import _staging, main
 
-#: End-to-end or long: left out of the quick run (pytest -m "not slow").
-pytestmark = pytest.mark.slow
-
 
 @pytest.fixture
 def interruptible():
@@ -59,6 +56,7 @@ def test_unwritable_output(tmp_path, capsys):
     assert_one_line_error(exit.value.code, capsys.readouterr().err, "--out", "empty path")
 
 
+@pytest.mark.slow
 def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):
     bad = tmp_path / "bad.exr"
     io.write_image(bad, np.full((4, 4, 3), np.nan, np.float32))
@@ -77,6 +75,7 @@ def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr", "good.exr", "o"]
 
 
+@pytest.mark.slow
 def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
     out = tmp_path / "out"
     args = ["render", "--scene", "title-step", "--size", "24x16", "--out", str(out)]
@@ -89,6 +88,7 @@ def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
     assert names == [".jaxadapt-render", *files]
 
 
+@pytest.mark.slow
 def test_a_folder_where_an_output_goes_fails_the_run_before_anything_moves(tmp_path, capsys):
     # The moves into --out stopped at the folder: the outputs before it in
     # order were the new run's, those after it the old run's, and the
@@ -176,6 +176,7 @@ def test_a_signal_as_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeyp
         assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.slow
 def test_staging_folders_of_killed_runs_are_removed_by_the_next(tmp_path, capsys):
     # A run killed outright (SIGKILL, the OOM killer) leaves its staging
     # folder; the next run into --out removes it, and only such folders.
@@ -201,6 +202,7 @@ def test_staging_folders_of_killed_runs_are_removed_by_the_next(tmp_path, capsys
     assert ".jaxadapt-older" in err and killed not in err
 
 
+@pytest.mark.slow
 def test_staging_folders_left_by_killed_runs_are_named(tmp_path, capsys):
     out = tmp_path / "out"
     (out / ".jaxadapt-killed").mkdir(parents=True)
@@ -209,6 +211,7 @@ def test_staging_folders_left_by_killed_runs_are_named(tmp_path, capsys):
     assert "warning:" in err and ".jaxadapt-killed" in err and "runs that were killed" in err
 
 
+@pytest.mark.slow
 def test_a_full_device_is_said_naming_out(tmp_path, capsys, monkeypatch):
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
@@ -220,6 +223,7 @@ def test_a_full_device_is_said_naming_out(tmp_path, capsys, monkeypatch):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_full_device_is_said_when_the_writer_gives_no_errno(tmp_path, capsys, monkeypatch):
     # OpenImageIO and ffmpeg say "cannot write (Write error ...)", naming
     # the removed staging folder: the device's free space tells.
@@ -260,6 +264,7 @@ def test_frame_files_beyond_99999_are_outputs_too():
     assert not _staging.RENDER_OUTPUTS.fullmatch("frame_0001.png")
 
 
+@pytest.mark.slow
 def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write(
     tmp_path, capsys, monkeypatch
 ):
@@ -292,6 +297,7 @@ def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write
     assert (tmp_path / "frame_00000.exr").is_symlink()
 
 
+@pytest.mark.slow
 def test_a_signal_after_the_outputs_are_in_place_is_a_success(tmp_path, capsys, monkeypatch):
     # The outputs all moved into --out, then a SIGTERM: exit status 0 and
     # the run's own summary (it said "interrupted" with status 143).
