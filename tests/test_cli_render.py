@@ -48,18 +48,6 @@ def test_builtin_scene_writes_frames_video_sheet_plot_and_diagnostics(tmp_path, 
 
 
 @pytest.mark.slow
-def test_tunnel_scene_chunks_give_the_same_as_one_call(tmp_path, capsys):
-    a, b = tmp_path / "a", tmp_path / "b"
-    args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "1", "--format", "exr"]
-    assert run(capsys, *args, "--out", str(a), "--chunk", "7")[0] == 0
-    assert run(capsys, *args, "--out", str(b), "--chunk", "64")[0] == 0
-    for k in (0, 13, 29):
-        np.testing.assert_allclose(
-            io.read_hdr(a / f"frame_{k:05d}.exr"), io.read_hdr(b / f"frame_{k:05d}.exr"), atol=1e-6
-        )
-
-
-@pytest.mark.slow
 def test_hdr_files_in_and_linear_files_out(tmp_path, capsys):
     frames = [np.full((6, 8, 3), v, np.float32) for v in (0.01, 100.0, 100.0)]
     paths = []

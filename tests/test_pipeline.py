@@ -38,22 +38,47 @@ def _render(op, params, source, size):
     )
 
 
-# (the global 2000 operator: tests/test_cli.py's tunnel in chunks)
+def _tunnel():
+    """The 2000 operator as ``jaxadapt render --scene tunnel`` runs it, on
+    1 s of a 32x18 drive: a global state, and a foveal goal that follows
+    the scene's gaze."""
+    source = pipeline.from_scene(scenes.tunnel_drive(32, 18, duration=1.0))
+    params = pattanaik2000.Params(goal=source.goal, pixels_per_degree=source.pixels_per_degree)
+    return pattanaik2000, params, source
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("op", "params", "adaptation"),
+    ("case", "size", "atol"),
     [
-        (pattanaik2000, pattanaik2000.Params(background="gaussian", background_scale=2.0), 0.01),
-        (jacobs2015, jacobs2015.Params(), None),
-        (classic, classic.Params(), None),
+        pytest.param(
+            lambda: (
+                pattanaik2000,
+                pattanaik2000.Params(background="gaussian", background_scale=2.0),
+                _step_source(T=4, adaptation=0.01),
+            ),
+            2,
+            1e-5,
+            id="pattanaik2000-local-given-adaptation",
+        ),
+        pytest.param(
+            lambda: (jacobs2015, jacobs2015.Params(), _step_source(T=4)), 2, 1e-5, id="jacobs2015"
+        ),
+        pytest.param(lambda: (classic, classic.Params(), _step_source(T=4)), 2, 1e-5, id="classic"),
+        # 30 frames 7 at a time: four chunks and a shorter last one
+        pytest.param(_tunnel, 7, 1e-6, id="pattanaik2000-foveal-tunnel"),
     ],
 )
-def test_chunks_give_the_frames_and_diagnostics_of_one_call(op, params, adaptation):
-    source = _step_source(T=4, adaptation=adaptation)
-    whole, whole_table = _render(op, params, source, size=4)
-    out, table = _render(op, params, source, size=2)
-    np.testing.assert_allclose(out, whole, atol=1e-5)
-    assert not np.allclose(out[1], out[2], atol=1e-3)  # the step is seen
+def test_chunks_give_the_frames_and_diagnostics_of_one_call(case, size, atol):
+    """A sequence rendered ``size`` frames at a time, each chunk starting
+    from the state the last one left, gives the frames and diagnostics of
+    one call on the whole sequence."""
+    op, params, source = case()
+    whole, whole_table = _render(op, params, source, size=len(source.times))
+    out, table = _render(op, params, source, size=size)
+    np.testing.assert_allclose(out, whole, atol=atol)
+    # the sequence changes across a chunk's boundary (the step; the tunnel's frame 14)
+    assert any(not np.allclose(out[k - 1], out[k], atol=1e-3) for k in range(size, len(out), size))
     for name, column in whole_table.items():
         np.testing.assert_allclose(table[name], column, rtol=1e-5, atol=1e-7)
 
