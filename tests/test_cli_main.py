@@ -56,14 +56,14 @@ def test_gaze_and_trial_files_that_are_not_text_are_named(tmp_path, capsys):
     ],
 )
 def test_an_interrupted_run_leaves_nothing_and_says_so(tmp_path, signum, command):
-    # Ctrl-C (SIGINT), a scheduler's SIGTERM and a closed terminal's SIGHUP
-    # (which left the staging folder behind), sent once the run has made
-    # its staging folder: one line, the shell's status 128 + signal, and
-    # neither the staging folder nor the --out it made remain. A fit makes
-    # its staging folder before fitting (it checked --out after the fit);
-    # killed here it is still compiling. (Killed 8 to 16 s in, in its
-    # bootstrap, 3 of 8 runs crashed as Python finalised under XLA's running
-    # threads, status 134 or 139, before cli.run: not reproduced in a test.)
+    # Ctrl-C (SIGINT), a scheduler's SIGTERM and a closed terminal's SIGHUP,
+    # sent once the run has made its staging folder: one line, the shell's
+    # status 128 + signal, and neither the staging folder nor the --out it
+    # made remain. A fit makes its staging folder (so checks --out) before
+    # fitting; killed here it is still compiling. (Killed 8 to 16 s in, in
+    # its bootstrap, a run can crash as Python finalises under XLA's running
+    # threads, status 134 or 139, before cli.run: 3 of 8 runs did, by hand.
+    # Not reproduced in a test.)
     trials = tmp_path / "trials.csv"
     rows = [
         f"p{p},{c},{x},{k},20"
@@ -116,8 +116,8 @@ def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
 @pytest.mark.parametrize("delay", [0.5, 1.2])
 def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
     # Sent while the program imports JAX and parses its arguments, before
-    # any command runs: a 30-line traceback, where the line and the status
-    # of an interrupted run are due.
+    # any command runs: the line and the status of an interrupted run, not
+    # a 30-line traceback.
     out = tmp_path / "o"
     process = _start("render", "--scene", "flash", *SMALL, "--out", str(out))
     time.sleep(delay)
@@ -130,8 +130,8 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
 
 def test_an_interrupt_wrapped_by_python_is_still_an_interrupt(monkeypatch, capsys):
     # A signal while matplotlib imports lands inside a class's __set_name__,
-    # which Python 3.11 re-raises as a RuntimeError: it printed a traceback
-    # and status 1 where the one line and 130 were due.
+    # which Python 3.11 re-raises as a RuntimeError: still the one line and
+    # 130, not a traceback and status 1.
     from jaxadapt.cli import _main
 
     class Interrupted:
@@ -156,9 +156,9 @@ def test_an_interrupt_wrapped_by_python_is_still_an_interrupt(monkeypatch, capsy
 
 
 def test_a_signal_after_the_command_leaves_its_status(tmp_path):
-    # A signal as the program exits (here: as its command returns) reached
-    # Python's exit handlers: 'Exception ignored in atexit callback' and a
-    # traceback, or status 130 after a run that had written everything.
+    # A signal as the program exits (here: as its command returns) must not
+    # reach Python's exit handlers ('Exception ignored in atexit callback'
+    # and a traceback) nor give status 130 after a run that wrote everything.
     code = (
         "import os, signal; from jaxadapt.cli import _main as cli\n"
         "def main():\n"
@@ -177,8 +177,8 @@ def test_a_signal_after_the_command_leaves_its_status(tmp_path):
 
 @pytest.mark.slow
 def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
-    # Handled as an interrupt, SIGHUP ended a `nohup jaxadapt render` when
-    # its terminal closed.
+    # Handled as an interrupt, SIGHUP would end a `nohup jaxadapt render`
+    # when its terminal closes.
     out = tmp_path / "o"
     process = _start(
         "render", "--scene", "flash", *SMALL, "--out", str(out), ignored=[signal.SIGHUP]
@@ -196,12 +196,12 @@ def test_a_signal_ignored_by_nohup_stays_ignored(tmp_path):
 @pytest.mark.parametrize(
     "argv, option",
     [
-        (["render", "--seed", "99999999999999999999999"], "--seed"),  # was an OverflowError
+        (["render", "--seed", "99999999999999999999999"], "--seed"),  # not an OverflowError
         (["psychometric", "simulate", "--observers", "2", "--seed", "-1"], "--seed"),
         (["render", "--multiplier", "0"], "--multiplier"),
         (["render", "--format", "gif"], "--format"),
-        # A rate whose video rounded to 0 frames/s (after the whole render)
-        # or whose frame time left float32 (black frames, or "dt").
+        # A rate whose video would round to 0 frames/s (after the whole
+        # render) or whose frame time leaves float32 (black frames, or "dt").
         (["render", "--fps", "1e-7"], "from 1e-05 to 1e+06"),
         (["render", "--fps", "1e300"], "from 1e-05 to 1e+06"),
         (["render", "--fps", "24000/0"], "(30, 29.97, 24000/1001)"),
@@ -229,7 +229,7 @@ def test_argument_errors_are_one_line(capsys, argv, option):
     ],
 )
 def test_an_unknown_argument_points_to_its_commands_help(capsys, argv, command):
-    # It pointed to `jaxadapt --help`, which lists only the commands.
+    # The command's own help, not `jaxadapt --help`, which lists only the commands.
     with pytest.raises(SystemExit) as exit:
         main(argv)
     err = capsys.readouterr().err

@@ -80,7 +80,7 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
     assert not (out / "group_test.csv").exists()  # the last run's, removed
     said = " ".join(err.split())  # the console wraps its lines
     assert "no group test" in said and "dark, manipulated" in said and "--control" in said
-    # With one condition no --control can help (it was suggested).
+    # With one condition no --control can help, so none is suggested.
     one = tmp_path / "one.csv"
     one.write_text("".join(r for r in trials.open() if ",manipulated," not in r))
     status, err = run(
@@ -114,8 +114,9 @@ def test_psychometric_fit_writes_fits_group_test_and_figures(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_many_undetermined_groups_are_counted_not_listed(tmp_path, capsys):
-    # 10,000 groups of simulated data wrote a warning line for each that
-    # the data did not determine: thousands of lines.
+    # A warning line for each group the data do not determine would be
+    # thousands of lines for 10,000 groups of simulated data: 10 are named,
+    # and all are counted.
     rows = ["participant,condition,level,n_yes,n_total"]
     rows += [f"p{i},control,{x},{k},10" for i in range(12) for x, k in ((0.0, 10), (0.1, 10))]
     status, err = _fit_rows(capsys, rows, tmp_path / "o", "--resamples", "0")
@@ -127,8 +128,9 @@ def test_many_undetermined_groups_are_counted_not_listed(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_results_on_stdout_warnings_on_stderr_csvs_with_lf(tmp_path, capsys):
-    # Every summary went to stderr with the warnings; the console wrapped
-    # lines at 80 columns, inside numbers ("p = \\n0.371"); CSVs had CRLF ends.
+    # The summaries go to stdout, the warnings to stderr, unwrapped (the
+    # console would wrap at 80 columns, inside numbers: "p = \\n0.371");
+    # CSVs end their lines with LF, not CRLF.
     levels = np.linspace(-0.3, 0.3, 5)
     rows = ["participant,condition,level,n_yes,n_total", "p0,control,0.0,10,10"]
     rows += _simulated_rows(range(1, 5), (("control", 0.0), ("bright", 0.1)), levels, 0.1, 3)
@@ -170,10 +172,10 @@ def test_psychometric_fit_names_the_bad_row(tmp_path, capsys):
 
 
 def test_psychometric_fit_refuses_its_options_before_fitting(tmp_path, capsys, monkeypatch):
-    # --out a file, and --ranksum exact on groups too large for its table,
-    # were found after the whole fit (28 s on a simulated experiment);
-    # --seed without a bootstrap, and --ranksum without a group test, were
-    # ignored. Now each is refused before any fit.
+    # Each is refused before any fit: --out a file, and --ranksum exact on
+    # groups too large for its table, would otherwise be found after the
+    # whole fit (28 s on a simulated experiment), and --seed without a
+    # bootstrap, or --ranksum without a group test, would be ignored.
     from jaxadapt.psychophysics import fit_table
 
     def no_fit(*args, **kwargs):
@@ -198,7 +200,7 @@ def test_psychometric_fit_refuses_its_options_before_fitting(tmp_path, capsys, m
 
 
 def test_out_of_memory_names_what_to_make_smaller(tmp_path, capsys, monkeypatch):
-    # It said "try a smaller --chunk or --size" to psychometric fit too.
+    # The advice is the command's own, not render's "try a smaller --chunk or --size".
     from jaxadapt.psychophysics import fit_table
 
     def exhausted(*args, **kwargs):
@@ -214,9 +216,10 @@ def test_out_of_memory_names_what_to_make_smaller(tmp_path, capsys, monkeypatch)
 
 @pytest.mark.slow
 def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
-    # "no" up to 0, "yes" from 0.15: any PSE between fits. The bootstrap of
-    # the prior's near-step curve gave (0.055, 0.094) and no warning; data
-    # without a PSE gave an interval of zero width at the prior's PSE.
+    # "no" up to 0, "yes" from 0.15: any PSE between fits, so the interval
+    # spans the gap, with a warning (a bootstrap of the prior's near-step
+    # curve would give (0.055, 0.094)); data without a PSE get an unbounded
+    # interval, not one of zero width at the prior's PSE.
     rows = ["participant,condition,level,n_yes,n_total"]
     for x, k in zip((-0.3, -0.15, 0.0, 0.15, 0.3), (0, 0, 0, 30, 30), strict=True):
         rows += [f"p1,control,{x},{k},30", f"p2,control,{x},30,30"]
@@ -232,13 +235,12 @@ def test_separated_responses_get_an_interval_of_their_gap(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_undetermined_fits_are_nan_and_left_out_of_the_group_test(tmp_path, capsys):
-    # p0's control answers are all "yes" at one level: written as pse
-    # -503161, sigma 141421, b1 0, converged true. p1's control is
-    # separated (0 to 5 to 10 of 10 "yes"): sigma 0.0307, converged true,
-    # where the likelihood grows without end as sigma goes to 0. Both
-    # entered the group test. Now: NaN, not converged, what the data
-    # determine in columns of their own, and left out of the test unless
-    # --keep-undetermined.
+    # p0's control answers are all "yes" at one level, and p1's control is
+    # separated (0 to 5 to 10 of 10 "yes"), where the likelihood grows
+    # without end as sigma goes to 0: the fits' numbers there (pse -503161
+    # and sigma 141421; sigma 0.0307) are not the data's. Both are NaN, not
+    # converged, with what the data determine in columns of their own, and
+    # left out of the group test unless --keep-undetermined.
     levels = np.linspace(-0.4, 0.4, 9)
     rows = ["participant,condition,level,n_yes,n_total", "p0,control,-0.2,10,10"]
     for x, k in zip(levels, (0, 0, 0, 0, 0, 0, 5, 10, 10), strict=True):
@@ -283,10 +285,10 @@ def _fit_in_float32(capsys, rows, folder):
 
 @pytest.mark.slow
 def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
-    # 3,000 trials a level: in float32 (the command's precision before, as
-    # JAX's default) the log-likelihood was 0.01 off statsmodels' (binomial
-    # terms of 2e4 that cancel), and an all-"no" PSE could fall below the
-    # levels. (The tests run with float64 on: here it is off, as for a user.)
+    # 3,000 trials a level: in float32 (JAX's default) the log-likelihood
+    # would be 0.01 off statsmodels' (binomial terms of 2e4 that cancel),
+    # and an all-"no" PSE could fall below the levels. (The tests run with
+    # float64 on: here it is off, as for a user.)
     levels, n = np.linspace(-0.3, 0.3, 5), 3000
     k = np.array([300, 900, 1500, 2100, 2700])
     rows = ["level,n_yes,n_total"] + [f"{x},{y},{n}" for x, y in zip(levels, k, strict=True)]
@@ -304,8 +306,8 @@ def test_psychometric_fit_is_float64_as_statsmodels(tmp_path, capsys):
 @pytest.mark.slow
 def test_psychometric_group_test_p_is_float64(tmp_path, capsys):
     # 170 participants whose PSEs separate the conditions completely: z =
-    # 15.9, p = 7.6e-57 (SciPy's mannwhitneyu), which the group test, run in
-    # float32 after the float64 fits, wrote as 0.
+    # 15.9, p = 7.6e-57 (SciPy's mannwhitneyu), which a group test in
+    # float32 after the float64 fits would write as 0.
     from scipy.stats import mannwhitneyu
 
     levels, n = np.linspace(-0.3, 0.3, 5), 40
@@ -323,14 +325,14 @@ def test_psychometric_group_test_p_is_float64(tmp_path, capsys):
     expected = mannwhitneyu(pse["test"], pse["control"], method="asymptotic", use_continuity=False)
     assert float(row["p"]) == pytest.approx(expected.pvalue, rel=1e-6)
     assert 0 < float(row["p"]) < 1e-50
-    # Fig. 13 draws the first 24 participants (6 rows): 170 panels took a
-    # minute to lay out, for a figure 11,200 pixels high.
+    # Fig. 13 draws the first 24 participants (6 rows): 170 panels would
+    # take a minute to lay out, for a figure 11,200 pixels high.
     assert matplotlib.image.imread(tmp_path / "psychometric.png").shape[0] < 2000
 
 
 def test_pse_figure_spans_the_placed_pses(tmp_path):
-    # An all-"yes" participant's PSE, set by the prior at -7.3e5, made the
-    # axis run to -7e5 and flattened every other PSE onto 0.
+    # An all-"yes" participant's PSE, set by the prior at -7.3e5, would make
+    # the axis run to -7e5 and flatten every other PSE onto 0.
     from jaxadapt import figures
     from jaxadapt.psychophysics import psychometric
     from jaxadapt.psychophysics.fit_table import FitTable
@@ -352,8 +354,8 @@ def test_pse_figure_spans_the_placed_pses(tmp_path):
 
 @pytest.mark.slow
 def test_figures_draw_any_condition_name_without_warnings(tmp_path, capsys):
-    # Unicode names fitted right but printed 26 lines of matplotlib's
-    # "Glyph ... missing" and drew empty boxes. A character no installed
+    # Unicode names are drawn in fonts that have them, without matplotlib's
+    # "Glyph ... missing" warnings or empty boxes. A character no installed
     # font has is written as its code point (U+1F9A9 here, on most machines).
     import warnings
 
@@ -385,7 +387,7 @@ def norm_cdf(z):
 
 
 def test_psychometric_simulate_checks_out_before_simulating(tmp_path, capsys, monkeypatch):
-    # An --out that is a file was refused after 11 s of simulating.
+    # An --out that is a file is refused before the simulation (11 s), not after it.
     from jaxadapt.psychophysics import observer
 
     def simulated(*args, **kwargs):

@@ -79,8 +79,8 @@ def test_hdr_files_in_and_linear_files_out(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_video_ffmpeg_cannot_write_fails_the_run(tmp_path, capsys):
     # H.264 is at most 16,384 pixels wide. imageio-ffmpeg's writer does not
-    # check ffmpeg's exit status: the run said it had written video.mp4, of
-    # 0 bytes, with ffmpeg's ten lines of errors on the terminal.
+    # check ffmpeg's exit status: unchecked, the run would say it had written
+    # video.mp4, of 0 bytes, after ffmpeg's ten lines of errors on the terminal.
     out = tmp_path / "out"
     size = ("--size", "20000x4", "--duration", "0.1", "--format", "mp4")
     status, err = run(capsys, "render", "--scene", "title-step", *size, "--out", str(out))
@@ -111,7 +111,7 @@ def test_non_hdr_and_unreadable_files(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, words",
     [
-        # argparse took -64x36 for an option: "expected one argument"
+        # argparse would take -64x36 for an option: "expected one argument"
         (["--size", "-64x36"], ("--size", "at least 2x2", "'-64x36'")),
         (["--size", "64x-36"], ("--size", "at least 2x2", "'64x-36'")),
         (["--fps", "-5"], ("--fps",)),
@@ -127,7 +127,7 @@ def test_negative_values_get_the_options_own_message(tmp_path, capsys, argv, wor
 
 @pytest.mark.slow
 def test_a_render_larger_than_the_limit_or_the_disk_is_refused(tmp_path, capsys, monkeypatch):
-    # 20 million frames at --fps 1e6 were accepted: hours and about 80 GB.
+    # 20 million frames at --fps 1e6 would take hours and about 80 GB.
     out = tmp_path / "o"
     args = ["render", "--size", "64x36", "--fps", "1e6", "--out", str(out)]
     status, err = run(capsys, *args)
@@ -153,9 +153,9 @@ def test_frames_of_different_sizes(tmp_path, capsys):
 
 
 def test_a_bad_file_late_in_a_sequence_is_found_before_rendering(tmp_path):
-    # Sizes and readability come from the headers, up front: a wrong last
-    # frame was found only when its chunk was read, after the render of all
-    # the frames before it.
+    # Sizes and readability come from the headers, up front: otherwise a
+    # wrong last frame would be found only when its chunk is read, after the
+    # render of all the frames before it.
     from jaxadapt import pipeline
 
     paths = [tmp_path / f"f{k}.exr" for k in range(4)]
@@ -177,8 +177,8 @@ def test_a_sequence_shorter_than_one_frame_is_refused(tmp_path, capsys):
 
 
 def test_bad_values_are_counted_and_located(tmp_path, capsys):
-    # The message gave one count of "negative, NaN or infinite values" and
-    # no place to look.
+    # Each kind of bad value is counted and its first pixel located, not
+    # one count of "negative, NaN or infinite values" and no place to look.
     frame = np.ones((4, 5, 3), np.float32)
     frame[1, 3, 0], frame[2, 0] = -1e-4, np.nan
     bad = tmp_path / "bad.exr"
@@ -191,8 +191,8 @@ def test_bad_values_are_counted_and_located(tmp_path, capsys):
         "row 1, column 3",
         "--fixnan black --clamp:min=0 -o OUT",
     )
-    # NaN and infinite values were told to clip negative ones: now the
-    # repair of what the frame holds, and only that.
+    # The repair offered is that of what the frame holds, and only that: no
+    # clipping of negative values where there are none.
     frame[1, 3, 0], frame[3, 4, 1] = 1.0, np.inf
     io.write_image(bad, frame)
     status, err = run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
@@ -208,7 +208,7 @@ def test_bad_values_are_counted_and_located(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_fps_takes_a_fraction(tmp_path, capsys):
-    # 24000/1001, as video rates are written, was refused.
+    # 24000/1001, as video rates are written.
     image = tmp_path / "in.exr"
     io.write_image(image, np.ones((4, 4, 3), np.float32))
     out = tmp_path / "o"
@@ -220,9 +220,9 @@ def test_fps_takes_a_fraction(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_pixels_per_degree_is_taken_within_its_range(tmp_path, capsys):
-    # 1e-6 stopped the tunnel's render with a traceback (non-finite display
-    # frames: the foveal weights, now fixed), and jacobs2015 ran for minutes
-    # on 3 frames of 64x48 at 1e6.
+    # Beyond the range jacobs2015's blurs, sized in pixels, outgrow any
+    # frame (minutes on 3 frames of 64x48 at 1e6); at its low end the
+    # foveal goal still gives finite frames.
     for value in ("1e-4", "2e4"):
         with pytest.raises(SystemExit) as exit:
             main(["render", "--pixels-per-degree", value])
@@ -238,7 +238,8 @@ def test_pixels_per_degree_is_taken_within_its_range(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_path, capsys):
-    # 1e9 on a 1x1 frame took the machine's 24 GB; 1e5 on 64x48, 677 MB.
+    # A scale beyond the frame costs memory for nothing: 1e9 on a 1x1 frame
+    # would take 24 GB, 1e5 on 64x48 677 MB.
     out = tmp_path / "o"
     args = ["render", "--scene", "flash", "--size", "48x32", "--duration", "0.3"]
     status, err = run(capsys, *args, "--background", "box", "--background-scale", "1000",
@@ -252,7 +253,7 @@ def test_a_background_scale_beyond_the_frame_is_refused_before_the_render(tmp_pa
 
 @pytest.mark.slow
 def test_a_frame_rate_too_low_for_a_video_is_refused_before_the_render(tmp_path, capsys):
-    # ffmpeg failed to write it after the whole render.
+    # ffmpeg would fail to write it, after the whole render.
     image = tmp_path / "in.exr"
     io.write_image(image, np.ones((8, 8, 3), np.float32))
     out = tmp_path / "o"
@@ -274,10 +275,10 @@ def test_overflow_after_the_multiplier_is_named(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_render_whose_cone_pigment_is_all_but_bleached_says_so(tmp_path, capsys):
-    # Frames of 1e12 cd/m2 (or frames in other units, 1e28) rendered a frame
-    # of the display's black without a word: the model's prediction (the
-    # cones' responses scale with the unbleached pigment), which pfstmo's
-    # operator shares, but one that looks like a failed render.
+    # Frames of 1e12 cd/m2 (or frames in other units, 1e28) render as the
+    # display's black: the model's prediction (the cones' responses scale
+    # with the unbleached pigment), which pfstmo's operator shares, but one
+    # that looks like a failed render, so it is said.
     for luminance, warned in ((1e8, False), (1e12, True), (1e28, True)):
         path = tmp_path / "bright.exr"
         io.write_image(path, np.full((4, 4, 3), luminance, np.float32))
@@ -342,7 +343,7 @@ def test_fps_sets_the_frame_rate_of_a_builtin_scene(tmp_path, capsys):
     # and the flash (0.25 to 0.375 s) begins and ends on frames of its own,
     times = [0.0, 0.1, 0.2, 0.25, 0.3, 0.375, 0.4]
     assert [float(r["t"]) for r in rows] == pytest.approx(times)
-    # which the video shows at the rate asked for (the median frame, 75 ms, made it 13.3 fps).
+    # which the video shows at the rate asked for, not the median frame's (75 ms: 13.3 fps).
     frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(out / "video.mp4"))
     assert frames == 7 and seconds == pytest.approx(0.7, abs=0.01)
 
@@ -429,7 +430,7 @@ def test_a_blink_in_the_gaze_holds_the_fixation_for_pattanaik2000(tmp_path, caps
 
 @pytest.mark.slow
 def test_a_gaze_file_of_blinks_alone_is_warned_about(tmp_path, capsys):
-    # Every sample a blink: the frame's centre was used without a word.
+    # Every sample a blink: the frame's centre is used, and that is said.
     gaze = tmp_path / "gaze.csv"
     gaze.write_text("t,x,y\n0,nan,nan\n")
     args = ["render", "--scene", "tunnel", "--size", "32x18", "--duration", "0.2"]
@@ -463,7 +464,7 @@ def test_bad_gaze_file_is_named(tmp_path, capsys):
 
 
 def test_a_memory_error_is_one_line_too(tmp_path, capsys, monkeypatch):
-    # NumPy's MemoryError (a filter's index arrays) printed a traceback.
+    # NumPy's MemoryError (a filter's index arrays) is one line too, not a traceback.
     def exhausted(*args, **kwargs):
         raise MemoryError("Unable to allocate 2.02 GiB")
 
@@ -509,8 +510,8 @@ def test_the_contact_sheet_spans_the_sequence(tmp_path, capsys, monkeypatch):
 
 @pytest.mark.slow
 def test_the_2015_diagnostics_plot_has_units_and_says_why_a_is_flat(tmp_path):
-    # A and A_T sat at the 100 cd/m2 floor and rho ran to 2.7 with nothing
-    # on the plot saying why; its y axes had no units.
+    # A and A_T can sit at the 100 cd/m2 floor and rho run to 2.7: the plot
+    # says why, and its y axes have units.
     from jaxadapt import figures
     from jaxadapt.operators import jacobs2015
 
@@ -532,7 +533,7 @@ def test_the_2015_diagnostics_plot_has_units_and_says_why_a_is_flat(tmp_path):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        # a 20 s tunnel at 1e-5 frames/s has no frame: it named --duration, not given
+        # a 20 s tunnel at 1e-5 frames/s has no frame: --fps is named, not --duration
         (["--fps", "1e-5"], "--fps: expected from 1 to 1e+08 frames"),
         (["--scene", "flash", "--duration", "0.2"], "--duration: expected more"),
         (["--duration", "1e308", "--fps", "10"], "--duration, --fps: expected"),  # OverflowError
@@ -548,7 +549,7 @@ def test_curves_are_drawn_where_adaptation_changes():
     from jaxadapt import figures
 
     # The title-page step: A jumps within 0.3 s of a 4 s sequence; frames
-    # evenly spaced in time drew none of the transient (0, 0.57, 1.14 s ...).
+    # evenly spaced in time would draw none of the transient (0, 0.57, 1.14 s ...).
     t = np.arange(134) * 0.03
     A = np.where(t < 0.03, 0.01, 1000 - 999.99 * np.exp(-(t - 0.03) / 0.08))
     picks = t[figures.curve_frames({"t": t, "A_rod": A, "A_cone": A})]
@@ -570,8 +571,9 @@ def test_curves_are_drawn_where_adaptation_changes():
     ],
 )
 def test_figures_name_what_they_cannot_draw(name, args, message):
-    # Floats in [0, 1] were drawn black, a 3-axis stack failed to unpack,
-    # and no frame or no column failed with an IndexError or a division by 0.
+    # Unchecked, floats in [0, 1] would be drawn black, a 3-axis stack would
+    # fail to unpack, and no frame or no column would fail with an
+    # IndexError or a division by 0.
     from jaxadapt import figures
 
     with pytest.raises(ValueError, match=message):
@@ -617,8 +619,8 @@ def _exr_at_rate(path, rate):
 
 @pytest.mark.slow
 def test_files_play_at_the_rate_their_header_gives(tmp_path, capsys):
-    # A 23.976 fps EXR sequence was simulated at 30 fps: the adaptation ran
-    # 25 % fast. The first file's FramesPerSecond is now the default.
+    # The first file's FramesPerSecond is the default rate: a 23.976 fps EXR
+    # sequence simulated at 30 fps would adapt 25 % fast.
     paths = [str(tmp_path / f"f{k}.exr") for k in range(3)]
     for p in paths:
         io.write_image(p, np.full((4, 6, 3), 50.0, np.float32), fps=24000 / 1001)
@@ -639,7 +641,7 @@ def test_files_play_at_the_rate_their_header_gives(tmp_path, capsys):
 
 
 def test_size_help_gives_each_scenes_default_size(capsys):
-    # It gave the default sizes of two scenes of six.
+    # Every scene's, as the scene renders its frames.
     from jaxadapt.scenes import SCENES
 
     with pytest.raises(SystemExit):

@@ -63,8 +63,8 @@ def test_a_failed_run_leaves_no_new_folder(tmp_path, capsys):
     status, err = run(capsys, "render", str(bad), "--out", str(tmp_path / "o"))
     assert_one_line_error(status, err, "bad.exr", "non-negative")
     assert not (tmp_path / "o").exists()
-    # Through a folder that does not exist and back (new/../o), the folders
-    # made were new and o, and only new was removed; a good run left new.
+    # Through a folder that does not exist and back (new/../o), the run
+    # makes new and o: a failed run removes both, a good run leaves no new.
     status, err = run(capsys, "render", str(bad), "--out", str(tmp_path / "new" / ".." / "o"))
     assert_one_line_error(status, err, "bad.exr", "non-negative")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr"]
@@ -90,9 +90,9 @@ def test_a_new_render_replaces_the_earlier_ones_outputs(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_folder_where_an_output_goes_fails_the_run_before_anything_moves(tmp_path, capsys):
-    # The moves into --out stopped at the folder: the outputs before it in
-    # order were the new run's, those after it the old run's, and the
-    # message named the removed staging folder.
+    # Found before anything moves: moves that stop at the folder would
+    # leave the outputs before it in order the new run's, those after it
+    # the old run's, and a message naming the removed staging folder.
     out = tmp_path / "out"
     args = ["render", "--scene", "title-step", "--size", "24x16", "--out", str(out)]
     assert run(capsys, *args, "--duration", "0.3")[0] == 0
@@ -107,7 +107,7 @@ def test_a_folder_where_an_output_goes_fails_the_run_before_anything_moves(tmp_p
 
 
 def test_a_folder_named_as_an_output_is_refused_before_the_render(tmp_path, capsys, monkeypatch):
-    # It was found only when the rendered files were moved into place.
+    # Found before the render, not when the rendered files move into place.
     def rendered(*args, **kwargs):
         raise AssertionError("rendered")
 
@@ -122,9 +122,9 @@ def test_a_folder_named_as_an_output_is_refused_before_the_render(tmp_path, caps
 def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(
     tmp_path, monkeypatch, interruptible
 ):
-    # A SIGINT after the first of the moves into --out left the new run's
-    # first files beside the rest of the earlier run's, and the message said
-    # that nothing was written.
+    # A SIGINT after the first of the moves into --out waits for the rest:
+    # acted on there, it would leave the new run's first files beside the
+    # rest of the earlier run's, with a message that nothing was written.
     out = tmp_path / "out"
     out.mkdir()
     (out / "b.csv").write_text("old")
@@ -141,8 +141,8 @@ def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(
     with _signals.interruptible(), _staging._staged(out, None) as staging:
         for name in ("a.csv", "b.csv", "c.csv"):
             (staging / name).write_text("new")
-    # Once all are in place the run has succeeded: the signal is dropped
-    # (it raised after the move, and the run said it was interrupted).
+    # Once all are in place the run has succeeded: the signal is dropped,
+    # not raised after the move to say that the run was interrupted.
     assert _signals.WRITTEN.is_set() and _signals.SIGNALLED == [signal.SIGINT]
     assert {p.name: p.read_text() for p in out.iterdir()} == dict.fromkeys(
         ("a.csv", "b.csv", "c.csv"), "new"
@@ -151,9 +151,9 @@ def test_a_signal_while_the_outputs_move_waits_and_the_run_succeeds(
 
 @pytest.mark.parametrize("existing", [False, True])
 def test_a_signal_as_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeypatch, existing):
-    # A SIGTERM just after the staging folder was made (a test sends it as
-    # soon as the folder is seen) came before the clean-up was armed: the
-    # staging folder, and the --out it made, stayed.
+    # A SIGTERM just after the staging folder is made (as a test sends it
+    # as soon as the folder is seen) finds the clean-up armed: neither the
+    # staging folder nor the --out it made stays.
     out = tmp_path / "new" / "out"
     if existing:
         out.mkdir(parents=True)
@@ -244,8 +244,8 @@ def test_a_full_device_is_said_when_the_writer_gives_no_errno(tmp_path, capsys, 
 def test_an_out_that_cannot_be_written_is_said_so_on_a_device_without_space(
     tmp_path, capsys, monkeypatch
 ):
-    # A read-only mount reports no free space: "cannot write to --out
-    # (Read-only file system)" was said as a full device.
+    # A read-only mount reports no free space: its error, "cannot write to
+    # --out (Read-only file system)", is said as it is, not as a full device.
     def read_only(*args, **kwargs):
         raise OSError(errno.EROFS, "Read-only file system")
 
@@ -259,7 +259,7 @@ def test_an_out_that_cannot_be_written_is_said_so_on_a_device_without_space(
 
 
 def test_frame_files_beyond_99999_are_outputs_too():
-    # frame_100000.png did not match, so a later run never removed it.
+    # frame_100000.png is an output too, or a later run would never remove it.
     assert _staging.RENDER_OUTPUTS.fullmatch("frame_100000.png")
     assert not _staging.RENDER_OUTPUTS.fullmatch("frame_0001.png")
 
@@ -269,8 +269,8 @@ def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write
     tmp_path, capsys, monkeypatch
 ):
     # Input frames named as the render's output frames, in --out: refused
-    # before anything is written (they used to be overwritten by the display
-    # frames). Renamed, they render into the same folder, and a file of the
+    # before anything is written (the display frames would overwrite
+    # them). Renamed, they render into the same folder, and a file of the
     # user's with an output name (their own video) stays.
     monkeypatch.chdir(tmp_path)
     for k in range(3):
@@ -288,8 +288,8 @@ def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write
     assert (tmp_path / "video.mp4").read_bytes() == b"the user's"
     for name in renamed:
         assert (tmp_path / name).read_bytes() == before[inputs[renamed.index(name)]]
-    # An input in --out that is a link, with an output's name: the link was
-    # replaced by the display frame (its target untouched).
+    # An input in --out that is a link, with an output's name, is refused
+    # too: the display frame would replace the link (its target untouched).
     (tmp_path / "frame_00000.exr").unlink()  # the last run's output
     (tmp_path / "frame_00000.exr").symlink_to(tmp_path / renamed[0])
     status, err = run(capsys, "render", "frame_00000.exr", "--out", ".", "--format", "exr")
@@ -300,7 +300,7 @@ def test_a_render_never_writes_over_its_inputs_nor_removes_what_it_did_not_write
 @pytest.mark.slow
 def test_a_signal_after_the_outputs_are_in_place_is_a_success(tmp_path, capsys, monkeypatch):
     # The outputs all moved into --out, then a SIGTERM: exit status 0 and
-    # the run's own summary (it said "interrupted" with status 143).
+    # the run's own summary, not "interrupted" and status 143.
     move = _staging._move_into_place
 
     def move_then_signal(*args):
