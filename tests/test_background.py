@@ -125,8 +125,8 @@ def test_constant_image_gives_its_luminance(name):
 
 def test_box_sizes_follow_the_chapter_box_as_the_octaves_do():
     # ||p - i|| < s made square: half-width ceil(s) - 1, the largest whole
-    # offset below s, as each level of octave_radii (box_background took
-    # round(s), a box two pixels wider; round(4.2) - 1 left offset 4 out).
+    # offset below s, as each level of octave_radii (round(s) would give a
+    # box two pixels wider, and round(4.2) - 1 would leave offset 4 out).
     L = np.random.default_rng(7).lognormal(size=(9, 13))
     np.testing.assert_array_equal(bg.box_background(jnp.asarray(L), scale=1), L)
     expected = ndi.uniform_filter(L, size=2 * 4 + 1, mode="mirror")
@@ -138,9 +138,10 @@ def test_box_sizes_follow_the_chapter_box_as_the_octaves_do():
 @pytest.mark.slow
 @pytest.mark.parametrize("name", LOCAL)
 def test_backgrounds_differentiate_under_jit(name):
-    # The box sums' reduce_window had a traced initial value, so JAX took the
-    # generic reduce_window, which it cannot transpose: jax.grad failed for
-    # box, adaptive and multiscale (they are jitted).
+    # The box sums' reduce_window needs a constant initial value: with a
+    # traced one JAX takes the generic reduce_window, which it cannot
+    # transpose, and jax.grad fails for box, adaptive and multiscale (they
+    # are jitted).
     rng = np.random.default_rng(8)
     L, v, w = (jnp.asarray(rng.lognormal(size=SHAPE)) for _ in range(3))
 
@@ -154,8 +155,8 @@ def test_backgrounds_differentiate_under_jit(name):
 
 @pytest.mark.parametrize("name", LOCAL)
 def test_integer_luminance_is_averaged_as_floats(name):
-    # gaussian_background truncated its averages to integers, and
-    # bilateral_background failed inside its loop.
+    # Averaged in the input's integer dtype, gaussian_background's averages
+    # would be truncated and bilateral_background's loop would fail.
     L = np.random.default_rng(9).integers(0, 100, size=SHAPE)
     as_float = bg.estimate_background(jnp.asarray(L, float), name, 2.0)
     np.testing.assert_allclose(bg.estimate_background(jnp.asarray(L), name, 2.0), as_float)

@@ -252,8 +252,9 @@ def test_more_frames_of_the_same_shape_do_not_retrace():
 
 
 def test_step_does_not_retrace_for_new_frames(count_calls):
-    # step built its background function afresh at each call, and tone_map,
-    # jitted with it as a static argument, was traced again for every frame.
+    # tone_map is jitted with step's background function as a static
+    # argument: a function built afresh at each call would trace it again
+    # for every frame.
     traces = count_calls(classic, "estimate_background")
     params = classic.Params(background="gaussian", background_scale=2.0)
     frame = hdr_frame(5, shape=(5, 11))  # a shape no other test uses
@@ -276,7 +277,8 @@ def test_float32_in_float32_out(name):
 @pytest.mark.parametrize("name", CURVES)
 def test_zero_and_negative_pixels_count_as_the_floor(name):
     # As a grey pixel at the floor: at the curve's black level, which is not
-    # 0 for Tumblin's (D/k^2) or Ward's; black pixels used to give 0 beside it.
+    # 0 for Tumblin's (D/k^2) or Ward's, so a black pixel shown as 0 would
+    # be darker than the floor's pixels beside it.
     floor = np.full(3, bg.LUMINANCE_FLOOR)
     rgb = jnp.asarray(hdr_frame()).at[0, 0].set(0.0).at[0, 1].set(-1.0).at[0, 2].set(floor)
     out = np.asarray(classic.tone_map(classic.TONE_CURVES[name](), rgb))
@@ -333,14 +335,15 @@ def test_bad_frames_and_backgrounds_name_the_argument():
         eqx.filter_jit(lambda f: classic.tone_map(params, f))(jnp.full((4, 5, 3), jnp.nan))
     with pytest.raises(ValueError, match="^background: expected None, a luminance array"):
         classic.tone_map(params, jnp.ones((4, 5, 3)), "gaussian")
-    for bad in (jnp.nan, -5.0):  # a black frame, or a white one, before
+    for bad in (jnp.nan, -5.0):  # unchecked: a black frame, or a white one
         with pytest.raises(ValueError, match="^background: expected finite"):
             classic.tone_map(params, jnp.ones((4, 5, 3)), jnp.full((4, 5), bad))
 
 
 def test_schlick_darkest_pixel_is_above_the_floor():
-    # One black pixel made I_min the floor (1e-6 cd/m2) and p hundreds of
-    # times larger: 10 cd/m2 of a 1 to 1,000 cd/m2 ramp went from 0.092 to 0.955.
+    # I_min is the darkest pixel above the floor: one black pixel taken as
+    # I_min (1e-6 cd/m2) would make p hundreds of times larger, and 10 cd/m2
+    # of a 1 to 1,000 cd/m2 ramp would go from 0.092 to 0.955.
     ramp = np.geomspace(1.0, 1000.0, 12).reshape(3, 4)
     curve = classic.Schlick1994(p=10.0, k=0.5)
 
@@ -353,10 +356,11 @@ def test_schlick_darkest_pixel_is_above_the_floor():
 
 
 def test_run_and_step_check_frames_and_dt_as_the_other_operators():
-    # run accepted negative pixels (an all-negative frame rendered mid-grey)
-    # and NaN or negative durations (diagnostics dated NaN, -1, -2), gave
-    # JAX's broadcasting error for a dt of the wrong shape, and named a
-    # frame's shape for frames of four channels.
+    # Refused, as the other operators refuse them: negative pixels (an
+    # all-negative frame would render mid-grey), NaN or negative durations
+    # (diagnostics dated NaN, -1, -2) and a dt of the wrong shape (else
+    # JAX's broadcasting error); frames of four channels are named as
+    # frames, the argument given.
     p = classic.Params()
     frames = jnp.full((2, 4, 4, 3), 10.0)
     for bad, dt, match in (

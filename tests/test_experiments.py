@@ -3,8 +3,7 @@ and helpers the scripts share do what they say.
 
 Running them all is too slow for the suite (the fitting ones take 15 to 40 s
 even with ``--smoke``); importing them catches a script left behind by a
-change to what it imports, as ``fit_tvi.py`` was when ``sensitivity`` moved
-from ``fit_time_constants.py`` to ``threshold.increment_sensitivity``.
+change to what it imports, such as a function moved to another module.
 """
 
 import importlib

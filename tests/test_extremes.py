@@ -24,10 +24,10 @@ from jaxadapt.operators import OPERATORS, checks, classic, jacobs2015, pattanaik
 
 F32_MAX = float(np.finfo(np.float32).max)
 
-#: Values that broke an operator before the ceiling: float32's largest, the
-#: largest whose luminance sum stays finite, a value whose reciprocal is a
-#: denormal, one whose Hunt adaptation factor (5 A) overflows, darkness,
-#: denormals and the smallest normal.
+#: Values that would break an operator without the ceiling: float32's
+#: largest, the largest whose luminance sum stays finite, a value whose
+#: reciprocal is a denormal, one whose Hunt adaptation factor (5 A)
+#: overflows, darkness, denormals and the smallest normal.
 SPECIAL = (F32_MAX, 3.4e38, 1e38, 7e37, 1e30, 1e10, 1e8, 1.0, 1e-30, 1.2e-38, 1e-40, 1e-45, 0.0)
 
 channel = st.one_of(
@@ -156,8 +156,9 @@ def test_render_of_extreme_frames_exits_0_with_finite_frames(operator, tmp_path,
 @pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_files_whose_values_leave_float32_when_read_are_clipped(tmp_path):
     # ACES primaries turn a legal 3e38 red into BT.709 5e38, and a PFM's
-    # scale of 2 doubles 3e38: NumPy's overflow warning, then an infinity
-    # that the operators refused as if the file held one.
+    # scale of 2 doubles 3e38. Clipped to float32's largest, such values
+    # raise no NumPy overflow warning and do not become infinities that the
+    # operators would refuse as if the file held one.
     import OpenImageIO as oiio
 
     img = np.full((4, 6, 3), 1.0, np.float32)

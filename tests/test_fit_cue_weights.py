@@ -92,7 +92,7 @@ def test_standard_errors_propagate_the_spread_of_one_experiment(calibrated):
 
 def test_known_weights_are_recovered_from_the_model():
     # Random (not antithetic) normals, as many groups as above (one
-    # compilation): the model is no longer linear in the weights; data made
+    # compilation): with them the model is not linear in the weights; data made
     # at known weights must give them back.
     cal = F.calibration(jax.random.key(1), STIMULI, groups=40)
     known = F.CueWeights(0.06, -0.05)

@@ -296,10 +296,10 @@ def test_a_parameter_run_off_its_flat_direction_leaves_the_others_identified():
     # 1e-160, where dp/du = 0 meets the model's infinite derivative: a NaN
     # Jacobian. Such a trial point is rejected; the solve goes on, t0_rod is
     # flagged and the three other constants keep finite standard errors.
-    # (Accepted, the NaN stopped the solve and every standard error was inf
-    # in one fit in ten of experiments/fit_time_constants.py.)
+    # (Accepted, the NaN would stop the solve with every standard error inf,
+    # in about one fit in ten of experiments/fit_time_constants.py.)
     # 32 observers, the paper's constants times log-normal factors (20 %),
-    # as in the experiment: with such points accepted, 19 of the 32 stopped.
+    # as in the experiment: with such points accepted, 19 of the 32 would stop.
     L, dt = _protocol([(1e-6, 1800.0, 40)])
     args = (L, dt, jnp.asarray(1e6))
     rng = np.random.default_rng(0)
@@ -518,11 +518,12 @@ def test_a_weakly_determined_positive_parameter_keeps_a_positive_interval():
 @pytest.mark.slow
 @pytest.mark.parametrize("dtype, scales", [("float64", (1e-9, 1e9)), ("float32", (1e-4, 1e5))])
 def test_the_units_of_data_and_weights_do_not_change_the_fit(decays, dtype, scales):
-    # The solver works on residuals in units of those at the start. Before,
-    # data in small units stopped at the start (optimistix's first test
-    # compared the residuals with zeros, below atol) and data in large units
-    # never moved (the damping, 1e-3 max diag(J'J), above optimistix's
-    # 1/eps cap); both reported converged=True. (Positive fields, fitted in
+    # The solver works on residuals in units of those at the start. In the
+    # data's own units, data in small units would stop at the start
+    # (optimistix's first test compares the residuals with zeros, below
+    # atol) and data in large units would never move (the damping, 1e-3 max
+    # diag(J'J), above optimistix's 1/eps cap), both reporting
+    # converged=True. (Positive fields, fitted in
     # log units; an unbounded field is fitted in its own units.)
     data = np.asarray(decays[0][0], dtype)
 
@@ -565,8 +566,8 @@ def test_the_units_of_an_unbounded_parameter_do_not_change_the_fit():
     # Each parameter is damped by its own Jacobian column (MINPACK's
     # scaling): x in [0, 1] or in [0, 1e6] (b in units a million times
     # smaller) gives the same steps and the same line. Damped alike (the
-    # same lambda for both), b's long column left a creeping: 15 steps for
-    # x up to 1,000.
+    # same lambda for both), b's long column would leave a creep: 15 steps
+    # for x up to 1,000.
     rng = np.random.default_rng(3)
     x = np.linspace(0.0, 1.0, 30)
     y = 2.0 + 0.5 * x + 0.01 * rng.standard_normal(x.size)
@@ -588,8 +589,8 @@ def test_the_units_of_an_unbounded_parameter_do_not_change_the_fit():
 def test_strongly_correlated_parameters_keep_their_standard_errors(dtype):
     # A line over x from 500 to 510: intercept and slope correlated at
     # -0.99998, each well determined. Judged on the eigenvalues of J'J
-    # formed in float32, the pair was "not identified" (se inf); on the
-    # singular values of J it matches statsmodels in both precisions.
+    # formed in float32, the pair would be "not identified" (se inf); judged
+    # on the singular values of J it matches statsmodels in both precisions.
     rng = np.random.default_rng(1)
     x = np.linspace(500.0, 510.0, 30)
     y = 3.0 + 0.02 * (x - 500.0) - 10.0 + 0.01 * rng.standard_normal(x.size)
@@ -617,9 +618,9 @@ def test_strongly_correlated_parameters_keep_their_standard_errors(dtype):
 def test_a_parameter_small_beside_a_large_offset_is_fitted_and_identified(decays):
     # a and b of a exp(-t / b) + c on an offset c = 1e8, all three fitted in
     # log units: the columns of a and b are 3e-8 of c's. Judged against
-    # sqrt(eps) of the longest column they counted as not felt: the damping
-    # held them at the start (loss 2.9, three steps) and their standard
-    # errors were inf. Float64 resolves them: the fit is SciPy's curve_fit of
+    # sqrt(eps) of the longest column they would count as not felt: the
+    # damping would hold them at the start (loss 2.9, three steps) with
+    # standard errors of inf. Float64 resolves them: the fit is SciPy's curve_fit of
     # the same data less the offset. (curve_fit of the data themselves stops
     # at twice the least sum of squares: its finite differences in c,
     # steps of sqrt(eps) 1e8, do not resolve the decay.)
@@ -639,9 +640,9 @@ def test_a_parameter_small_beside_a_large_offset_is_fitted_and_identified(decays
 def test_converged_means_at_the_minimum_even_from_a_start_far_from_the_data(dtype):
     # Data in units of 1e8, positive parameters (fitted in log units)
     # started at 1. In float64 the fit walks the eight decades to the
-    # least-squares line. (Before MINPACK's scaling it stopped with a = 15,
-    # 3,000 times the least sum of squares, by the ftol test, and said
-    # converged.) In float32 no step the sum of squares can resolve is
+    # least-squares line. (Without MINPACK's scaling it would stop with
+    # a = 15, 3,000 times the least sum of squares, by the ftol test, and
+    # report converged.) In float32 no step the sum of squares can resolve is
     # small enough to be accepted, and the solve stalls at the start:
     # solved, but a Gauss-Newton step from there is many standard errors
     # long, so not converged. Either way, converged is true exactly when
@@ -671,7 +672,7 @@ def test_estimates_and_standard_errors_follow_the_order_of_names(decays):
 
 def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
     # jax_enable_x64 on (as in the experiments), data loaded as float32: the
-    # model computes in float64, and so does the fit (lineax used to fail
+    # model computes in float64, and so does the fit (otherwise lineax fails
     # with "pytree does not have a consistent input_structure").
     data, f64 = decays
     f = fitting.fit(decay, Decay(), ABC, data[0].astype(np.float32), args=T, bounds=UNBOUNDED_C)
@@ -682,9 +683,10 @@ def test_float32_data_of_a_float64_model_are_fitted_in_float64(decays):
 @pytest.mark.slow
 def test_float64_data_of_a_float32_model_are_fitted_in_float32(decays):
     # NumPy's float64 measurements against a model that computes in float32
-    # (as the operators do on float32 frames): JAX refused the fit ("Custom
-    # JVP rule must produce primal and tangent outputs with corresponding
-    # dtypes"), in both modes of the Jacobian.
+    # (as the operators do on float32 frames): the fit is in the model's
+    # float32, in both modes of the Jacobian; in float64 JAX would refuse it
+    # ("Custom JVP rule must produce primal and tangent outputs with
+    # corresponding dtypes").
     data, f64 = decays
 
     def decay32(params, t):
@@ -708,8 +710,9 @@ def test_float64_data_of_a_float32_model_are_fitted_in_float32(decays):
 
 @pytest.mark.parametrize("empty", ["nan", "weight 0"])
 def test_a_dataset_without_measurements_stops_at_once(decays, empty):
-    # Its residuals are all masked to 0: every step's gain ratio is 0/0 and
-    # was rejected, so it ran to max_steps (256) and its batch waited.
+    # Its residuals are all masked to 0, so every step's gain ratio is 0/0:
+    # rejecting step after step, it would run to max_steps (256) while its
+    # batch waits.
     data, f = decays
     data = np.concatenate([data, np.full((1, T.size), np.nan if empty == "nan" else 1.0)])
     weights = np.ones_like(data)
@@ -759,10 +762,10 @@ def uneven():
 def test_float32_fits_in_lanes_stop_at_their_minimum(monkeypatch):
     # t0_cone from 20 frames of the 2000 operator, float32, in a queue of 4
     # lanes. At the minimum every step is rejected and the damping grows;
-    # the predicted reduction, taken as a difference of two sums, kept 2
-    # roundings of the sum of squares in the lanes' vectorised arithmetic
-    # and never passed the stall test: 256 steps, solved False, where one
-    # lane stopped after 8.
+    # taken as a difference of two sums, the predicted reduction would keep
+    # 2 roundings of the sum of squares in the lanes' vectorised arithmetic
+    # and never pass the stall test: 256 steps, solved False, where one
+    # lane alone stops after 8.
     from jaxadapt.operators import pattanaik2000 as op
 
     def model(params, frames):

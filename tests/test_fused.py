@@ -70,8 +70,9 @@ def _brightening(T=3, H=4, W=5):
 
 @pytest.mark.slow
 def test_kernel_derivative_is_that_of_the_map():
-    # With two frames of one level (as this test had) the display did not
-    # depend on t0 at all: the derivative compared was rounding, 2e-15.
+    # Frames that brighten: with two frames of one level the display would
+    # not depend on t0 at all, and the derivative compared would be
+    # rounding, 2e-15.
     frames = _brightening()
 
     def loss(t0, fn):

@@ -38,10 +38,10 @@ def test_foveal_weights_are_normalised_and_centred():
 
 
 def test_a_foveal_patch_narrower_than_a_pixel_is_the_nearest_pixels():
-    # `jaxadapt render --pixels-per-degree 1e-6` stopped with non-finite
-    # display frames: compiled, the weights were NaN at the two pixels
-    # nearest the gaze (the difference of two exponents of -1e12). Now the
-    # pixels nearest the gaze share the weight, at any narrowness.
+    # At `--pixels-per-degree 1e-6` the Gaussian's weights are the
+    # difference of two exponents of -1e12, NaN once compiled: the pixels
+    # nearest the gaze share the weight instead, at any narrowness, so that
+    # the display frames stay finite.
     weights = jax.jit(partial(spatial.foveal_weights, (48, 64), dtype=jnp.float32))
     for gaze, nearest in (([31.5, 25.2], [(25, 31), (25, 32)]), ([10.0, 5.0], [(5, 10)])):
         for ppd in (1e-6, 1e-30, 0.0):
@@ -167,9 +167,9 @@ def test_long_kernels_go_by_products_and_match_scipy(shape, sigma):
 
 
 def test_integer_images_are_filtered_as_numbers():
-    # The filters computed in the image's dtype: a blur of uint8 came back
-    # truncated to whole numbers, the bilateral filter failed inside its scan,
-    # and a luminance of integer RGB was 0 (its weights rounded to 0).
+    # Computed in the image's dtype, a blur of uint8 would be truncated to
+    # whole numbers, the bilateral filter would fail inside its scan, and a
+    # luminance of integer RGB would be 0 (its weights rounded to 0).
     u = (np.arange(48) % 2 * 255).astype(np.uint8).reshape(6, 8)
     f = u.astype(float)
     for filt in (
@@ -204,8 +204,8 @@ def test_bad_images_and_filter_arguments_are_named(call, message):
 
 
 def test_an_intensity_width_per_frame_filters_each_frame_with_its_own():
-    # sigma_r of shape (3, 1, 1) against images (2, 3, H, W): it was not
-    # reshaped with the image's batch axes and failed to broadcast.
+    # sigma_r of shape (3, 1, 1) against images (2, 3, H, W): it is
+    # reshaped with the image's batch axes to broadcast.
     img = np.random.default_rng(8).random((2, 3, 7, 9))
     widths = np.array([0.1, 0.2, 0.3])
     got = spatial.bilateral_filter(jnp.asarray(img), 2.0, widths[:, None, None])

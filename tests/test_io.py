@@ -63,11 +63,11 @@ def test_hdr_formats_round_trip(tmp_path, suffix):
 @pytest.mark.parametrize(
     "name, pixels, match",
     [
-        # A linear float frame was written to PNG unencoded (0.5 as 128, too dark).
+        # A linear float frame written to PNG unencoded would be too dark (0.5 as 128).
         ("f.png", np.full((4, 4, 3), 0.5, np.float32), r"f.png: expected uint8 .* got float32"),
         ("f.png", np.zeros((4, 4, 3), np.uint16), "pixels: expected uint8 or floating"),
         ("f.exr", np.zeros((4, 4, 3), np.uint8), "f.exr: expected floating-point pixels"),
-        # A TIFF takes both: uint16 was written as floats, 1000 as 1000/65535.
+        # A TIFF takes both: uint16 would be written as floats, 1000 as 1000/65535.
         ("f.tif", np.full((4, 4, 3), 1000, np.uint16), "pixels: expected uint8 or floating"),
         # Two axes: an IndexError of the header's third.
         ("f.exr", np.ones((4, 5), np.float32), r"pixels: expected shape \(H, W, C\)"),
@@ -181,8 +181,8 @@ def _write_parts(path, *parts):
     ],
 )
 def test_channels_that_are_not_colour_are_refused(tmp_path, names, match):
-    # They were taken by position (the first three, or a single one as grey)
-    # and tone-mapped as if they were the picture.
+    # Taken by position (the first three, or a single one as grey), they
+    # would be tone-mapped as if they were the picture.
     path = tmp_path / "passes.exr"
     _write_parts(path, (names, 5000.0))
     with pytest.raises(ValueError, match=r"passes\.exr: expected R, G and B channels .*" + match):
@@ -190,8 +190,8 @@ def test_channels_that_are_not_colour_are_refused(tmp_path, names, match):
 
 
 def test_the_first_part_with_colour_is_read(tmp_path):
-    # A multi-part EXR whose first part is a depth pass: only part 0 was
-    # read, and its depth (5000) rendered as luminance.
+    # A multi-part EXR whose first part is a depth pass: read from part 0,
+    # its depth (5000) would render as luminance.
     path = tmp_path / "parts.exr"
     _write_parts(path, (("Z",), 5000.0), (("R", "G", "B", "A"), 2.0))
     np.testing.assert_array_equal(io.read_hdr(path), np.full((3, 4, 3), 2.0))
@@ -203,8 +203,8 @@ def test_the_first_part_with_colour_is_read(tmp_path):
 def test_exr_data_window_is_placed_in_the_display_window(tmp_path, x, y, w, h):
     # An EXR stores its data window, which may be part of the image (a render
     # cropped to its non-black pixels) or reach beyond it (overscan). Read as
-    # the data window, a moving patch in a black frame came out as a still
-    # patch, of the patch's size. The reference: OpenImageIO's own crop of
+    # the data window, a moving patch in a black frame would come out as a
+    # still patch, of the patch's size. The reference: OpenImageIO's own crop of
     # the file to its display window (zeros where no data are stored).
     spec = oiio.ImageSpec(w, h, 3, "float")
     spec.x, spec.y = x, y
@@ -223,8 +223,8 @@ def test_exr_data_window_is_placed_in_the_display_window(tmp_path, x, y, w, h):
 
 @pytest.mark.parametrize("encoding, transfer", [("srgb", "iec61966-2-1"), ("gamma", "bt470m")])
 def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer):
-    # ffmpeg's default converted RGB with BT.601's matrix and tagged nothing:
-    # pure red had luma 81 where a BT.709 player expects 63 (16 + 219 * 0.2126).
+    # ffmpeg's default converts RGB with BT.601's matrix and tags nothing:
+    # pure red gets luma 81 where a BT.709 player expects 63 (16 + 219 * 0.2126).
     import subprocess
 
     import imageio_ffmpeg
@@ -274,9 +274,9 @@ _DISPLAYED = {
 @pytest.mark.parametrize("suffix", [".exr", ".tif"])
 @pytest.mark.parametrize("orientation", range(1, 9))
 def test_orientation_turns_the_image_as_displayed(tmp_path, suffix, orientation):
-    # Files with an Orientation other than 1 were read as stored: upside down
-    # for 4, and with width and height swapped by hdr_size's and read_hdr's
-    # callers for 5 to 8. The reference: the displayed image where written
+    # Files with an Orientation other than 1, read as stored, would be upside
+    # down for 4, and with width and height swapped by hdr_size's and
+    # read_hdr's callers for 5 to 8. The reference: the displayed image where written
     # out above, else OpenImageIO's own reorient (oiiotool --reorient).
     stored = _gradient(4, 3)
     path = tmp_path / f"turned{suffix}"
@@ -306,7 +306,7 @@ def _rgbe(image):
 def test_radiance_resolution_line_orients_the_image(tmp_path, resolution, stored):
     # The resolution line gives the order of the stored pixels (Radiance's
     # resolu.c; the standard is -Y H +X W, rows from the top, each from the
-    # left). A +Y file was read upside down.
+    # left): a +Y file read as the standard order would be upside down.
     image = _gradient(3, 4)
     path = tmp_path / "turned.hdr"
     header = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + resolution + b"\n"
@@ -336,8 +336,8 @@ def _colours():
 
 @pytest.mark.parametrize("space", _PRIMARIES)
 def test_exr_primaries_are_converted_to_bt709(tmp_path, space):
-    # An EXR's chromaticities were ignored: ACES AP0 red (100, 0, 0) was
-    # read as BT.709 red. The reference: OpenImageIO's colorconvert with
+    # An EXR's chromaticities are applied: ACES AP0 red (100, 0, 0) is not
+    # BT.709 red. The reference: OpenImageIO's colorconvert with
     # OpenColorIO's built-in configuration (Bradford adaptation to D65),
     # its negative channels (colours outside BT.709's gamut) clipped to 0.
     path = tmp_path / "wide.exr"
@@ -350,7 +350,8 @@ def test_exr_primaries_are_converted_to_bt709(tmp_path, space):
 
 def test_colours_outside_bt709_render(tmp_path):
     # ACEScg red (100, 0, 0) is BT.709 (170.5, -13.0, -2.4): the negative
-    # channels made the render refuse the file as holding negative values.
+    # channels, out of BT.709's gamut, are clipped to 0, not refused as
+    # negative values in the file.
     path = tmp_path / "acescg.exr"
     _write(path, _colours(), chromaticities=_PRIMARIES["ACEScg"])
     frames = pipeline.from_files([path], fps=30).frames(np.arange(1))
@@ -395,8 +396,9 @@ def test_grey_and_bt709_files_are_not_converted(tmp_path):
 
 def test_radiance_primaries_line_is_converted_to_bt709(tmp_path):
     # Radiance records its primaries as PRIMARIES= rx ry gx gy bx by wx wy,
-    # which OpenImageIO does not report: read as BT.709 before. The
-    # reference: OpenImageIO's colorconvert (OpenColorIO) of the pixels.
+    # which OpenImageIO does not report (so the pixels would pass as
+    # BT.709). The reference: OpenImageIO's colorconvert (OpenColorIO) of
+    # the pixels.
     primaries = _PRIMARIES["lin_rec2020_scene"]
     path = tmp_path / "wide.hdr"
     line = b"PRIMARIES= " + b" ".join(b"%g" % v for v in primaries)
@@ -455,9 +457,9 @@ def _bad_radiance(path, line):
     ids=["exposure-nan", "exposure-0", "primaries-2", "primaries-flat", "white-y0", "turn-9"],
 )
 def test_hdr_size_refuses_the_headers_read_hdr_refuses(tmp_path, name, write, match):
-    # hdr_size, with which a sequence's frames are checked before any is
-    # rendered, passed a bad EXPOSURE line that read_hdr refused only when
-    # that frame's turn came.
+    # hdr_size checks a sequence's frames before any is rendered: a header
+    # it passed but read_hdr refused would stop the render only when that
+    # frame's turn came.
     path = tmp_path / name
     write(path)
     for function in (io.hdr_size, io.read_hdr):
@@ -549,8 +551,8 @@ def _double_tiff(path, pixels):
 
 
 def test_doubles_beyond_float32_are_refused_as_out_of_range(tmp_path):
-    # They turned infinite in the reading, and were refused as if the file
-    # held infinities, with the advice to set them to black.
+    # Cast to float32 they would turn infinite, and be refused as if the
+    # file held infinities, with the advice to set them to black.
     path = tmp_path / "big.tif"
     _double_tiff(path, np.full((2, 3, 3), 1e50))
     with pytest.raises(ValueError, match=r"big.tif: expected values within float32's range "):

@@ -538,8 +538,9 @@ def test_bad_luminance_is_named(bad):
 
 @pytest.mark.parametrize("bad", [-5.0, np.nan, np.inf])
 def test_bad_adaptation_luminance_is_named(bad):
-    # NaN filled the state, and every frame after it, with NaN (about 0 on
-    # the display), and -5 ran; the 2000 operator refused both.
+    # Unchecked, NaN would fill the state, and every frame after it, with
+    # NaN (about 0 on the display), and -5 would run; the 2000 operator
+    # refuses both too.
     with pytest.raises(ValueError, match=r"^adaptation: expected a finite luminance >= 0"):
         op.init(op.Params(), flash_frames()[0], key=KEY, adaptation=bad)
 
@@ -564,21 +565,21 @@ def test_bad_dt_and_missing_key_are_named():
         ({"m1": -2.0}, r"m1 - m2: expected the mesopic range's upper end .* got Array\(0"),
         ({"m1": -3.0}, "m1 - m2: expected the mesopic range's upper end"),
         ({"m2": jnp.nan}, "m1 - m2: expected the mesopic range's upper end"),
-        # Two bleaching rates for three cones: accepted, then JAX's
+        # Two bleaching rates for three cones: named here, not left to JAX's
         # broadcasting error from inside run.
         ({"b1": (1e-3, 1e-4)}, r"b1: expected shape \(3,\) .* got shape \(2,\)"),
         ({"H": np.eye(2)}, r"H: expected shape \(3, 3\)"),
-        # Eq 11 as printed: after long darkness C rounded to C_max, alpha was
+        # Eq 11 as printed: after long darkness C rounds to C_max, alpha is
         # infinite and the frame black, its gradients NaN.
         ({"calcium_epsilon": 0.0}, "calcium_epsilon: expected a positive, finite number"),
-        # M >= 1 made sigma NaN, M = 0 infinite: black frames.
+        # M >= 1 makes sigma NaN, M = 0 infinite: black frames.
         ({"plateau_max": 1.2}, r"plateau_max: expected in \(0, 1\)"),
         ({"plateau_max": 0.0}, r"plateau_max: expected in \(0, 1\)"),
     ],
 )
 def test_a_parameter_out_of_its_range_is_named(fields, match):
-    # A negative adaptation rate or a NaN decay ran and gave wrong frames
-    # without a word.
+    # A negative adaptation rate or a NaN decay would run and give wrong
+    # frames without a word.
     with pytest.raises(ValueError, match=match):
         op.Params(**fields)
     op.Params(j1=0.0, j2=0.0, g=0.0)
@@ -616,15 +617,15 @@ def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     path.write_text("0.0,10\n")
     with pytest.raises(ValueError, match="line 1"):
         read_gaze_csv(path)
-    # Times that stop increasing are named by line (the times were printed,
-    # cut short by numpy's "...").
+    # Times that stop increasing are named by line, not printed (numpy cuts
+    # a long array short with "...").
     path.write_text("".join(f"{t},2,2\n" for t in range(2000)) + "1.0,1,1\n")
     with pytest.raises(
         ValueError, match="increase .* got 1.0 on line 2001 after 1999 on line 2000"
     ):
         read_gaze_csv(path)
     # 1e39 pixels is finite in float64 but not in float32, where the
-    # operators took it for a blink.
+    # operators would take it for a blink.
     for row in ("0.5,inf,3", "0.5,nan,3", "0.5,,3", "0.5,1e39,3"):  # not a blink: one coordinate
         path.write_text(f"t,x,y\n0,1,1\n{row}\n")
         with pytest.raises(ValueError, match=f"got '{row}' on line 3"):
@@ -633,10 +634,10 @@ def test_gaze_csv_round_trip_blinks_and_errors(tmp_path):
     path.write_bytes(b"\xef\xbb\xbft,x,y\r\n0,10,20\r\n")
     t, xy = read_gaze_csv(path)
     assert t.tolist() == [0.0] and xy.tolist() == [[10.0, 20.0]]
-    # A header in any case (this one was refused as a bad row).
+    # A header in any case, not taken for a bad row.
     path.write_text("Time,X,Y\n0,10,20\n")
     assert read_gaze_csv(path)[0].tolist() == [0.0]
-    # The header names the columns: x,y,t was read as t,x,y, without a word.
+    # The header names the columns: x,y,t is not read as t,x,y.
     path.write_text("x,y,T\n10,20,0\n30,40,1\n")
     t, xy = read_gaze_csv(path)
     assert t.tolist() == [0.0, 1.0] and xy.tolist() == [[10.0, 20.0], [30.0, 40.0]]
@@ -660,8 +661,9 @@ def test_jacobs_scenes_are_registered_and_calibrated():
 @pytest.mark.slow
 @pytest.mark.parametrize("length", [0.125, 0.001])
 def test_a_flash_lasts_its_length_at_any_frame_rate(length):
-    # At 30 fps a 1/8 s flash from 0.25 s lit 4 whole frames (0.133 s): the
-    # S-cone bleaching it left was 3 % too high; 1 ms was refused.
+    # At 30 fps a 1/8 s flash from 0.25 s ends inside a frame: lit for 4
+    # whole frames (0.133 s) it would leave 3 % too much S-cone bleaching.
+    # A flash of 1 ms, shorter than a frame, is taken too.
     params = op.Params(acuity=False, dithering=False, afterimage_blur=0.0)
     after = {}
     for fps in (30.0, 120.0):
@@ -681,7 +683,7 @@ def test_a_flash_lasts_its_length_at_any_frame_rate(length):
     ):
         with pytest.raises(ValueError, match=f"^{message}"):
             scenes.flash(width=8, height=8, duration=4.0, onset=onset, flash_duration=length)
-    # A flash ending with the scene left a last frame of 5.6e-17 s.
+    # A flash ending with the scene leaves no last frame of rounding (5.6e-17 s).
     scene = scenes.flash(width=8, height=8, duration=0.3, fps=50, onset=0.05, flash_duration=0.25)
     assert len(scene.times) == 16 and scene.dt[-1] == pytest.approx(0.02)
 
@@ -708,9 +710,9 @@ def test_afterimage_maps_spread_the_same_angle_on_any_display():
 def test_blurred_maps_keep_their_ranges_where_the_equilibrium_changes():
     # A square just lit (its calcium at C_max, its equilibrium 0) inside a
     # dark field at C_max, and one just darkened (bleached, equilibrium 0)
-    # inside a bleached bright field: the blurred departures took the
-    # fields' calcium above C_max and bleaching above 1, and Eq 11's local
-    # gain negative (-0.015 beside a 1e8 cd/m2 sun gone dark).
+    # inside a bleached bright field: the blurred departures must not take
+    # the fields' calcium above C_max, bleaching above 1, or Eq 11's local
+    # gain negative (it would reach -0.015 beside a 1e8 cd/m2 sun gone dark).
     params = op.Params(afterimage_blur=2.0)
     C_max = float(params.c1 / params.c2)
     square = jnp.zeros((24, 24, 3), bool).at[8:16, 8:16].set(True)
@@ -748,9 +750,9 @@ def test_only_switches_on_the_named_effects_and_names_unknown_ones():
 
 
 def test_acuity_sizes_at_the_papers_display_are_appendix_a_pixels():
-    """At 64 pixels per degree the defaults are the pixel sizes they were
-    (Appendix A's sigma_0 = 0.75 pixels, a 16-pixel noise cell), exactly, so
-    that frames there do not change."""
+    """At 64 pixels per degree, the paper's display, the defaults are
+    exactly Appendix A's pixel sizes (sigma_0 = 0.75 pixels, a 16-pixel
+    noise cell)."""
     p = op.Params()
     assert (p.acuity_sigma0, p.acuity_noise_cell) == (0.75, 16.0)
     frames = _acuity_frames()

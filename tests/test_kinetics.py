@@ -124,9 +124,9 @@ def test_relaxation_sequence_equals_a_loop_of_steps(dtype, rtol):
 
 
 def test_a_rate_per_step_broadcasts_over_a_map_of_targets():
-    # The durations were shaped by the rate's axes alone: with one rate per
-    # step and a map of targets, the affine offsets paired the steps'
-    # durations with the map's last axis (of the same length T here).
+    # With one rate per step and a map of targets, each step's duration
+    # goes with its step, not with the map's last axis (of the same length
+    # T here), as the rate's axes alone would pair them.
     rng = np.random.default_rng(8)
     rate = jnp.asarray(rng.uniform(0.1, 3.0, 3))
     target = jnp.asarray(rng.uniform(0.0, 1.0, (3, 2, 3)))
@@ -144,7 +144,7 @@ def test_a_rate_per_step_broadcasts_over_a_map_of_targets():
 @pytest.mark.slow
 def test_integrate_meets_its_default_tolerances_in_float32():
     # The float64 defaults (1e-8, 1e-10) cannot be met in float32: the
-    # solver ran out of steps. Float32 times get tolerances it can meet.
+    # solver would run out of steps. Float32 times get tolerances it can meet.
     ts = jnp.asarray([0.0, 0.01, 0.1, 1.0, 10.0, 100.0], jnp.float32)
     G = jnp.asarray([0.0, 1.0, 1e5, 1e8], jnp.float32)  # one solve of four states
     y0 = jnp.full(4, 0.3, jnp.float32)
@@ -255,7 +255,7 @@ def test_relaxation_sequence_derivatives_equal_those_of_a_loop_of_steps():
         return jnp.stack(ys)
 
     # Each derivative compiled as a whole: run op by op, the loop's
-    # derivatives took 50 s of dispatch (the test's numbers are the same).
+    # derivatives would take 50 s of dispatch (for the same numbers).
     inputs = (y0, rate, target, dt)
     for derivative in (jax.jacfwd, jax.jacrev):
         ours = jax.jit(derivative(scan, argnums=(0, 1, 2, 3)))(*inputs)

@@ -120,9 +120,10 @@ def test_steady_state_of_a_long_constant_scene_is_the_static_model():
 
 
 def test_a_viewer_adapted_to_darkness_is_adapted_to_the_floor():
-    # adaptation=0 (fully dark-adapted): sigma of Eqs 4-5 is 0/0 there, and
-    # the first frame of a 10 cd/m2 field was display black instead of a
-    # dazzle. It counts as the luminance floor, as the goals of frames do.
+    # adaptation=0 (fully dark-adapted): sigma of Eqs 4-5 is 0/0 there,
+    # which would show the first frame of a 10 cd/m2 field as display black
+    # instead of a dazzle. It counts as the luminance floor, as the goals of
+    # frames do.
     frames = jnp.full((2, 3, 3, 3), 10.0)
     dark, floor = (op.init(P, None, adaptation=a) for a in (0.0, 1e-6))
     out_dark, diag = op.run(P, frames, 0.03, state=dark)
@@ -162,8 +163,9 @@ def test_vmap_over_a_batch_of_params_equals_separate_runs():
     for i, t0 in enumerate(t0s):
         single, _ = op.run(op.Params(t0_cone=t0), frames, 0.03)
         np.testing.assert_allclose(outs[i], single, rtol=1e-10)
-    # The batch passed as it is: a t0_cone per frame without a word (3 of
-    # them, 3 frames), or JAX's broadcasting errors naming no field.
+    # The batch passed as it is is named: otherwise a t0_cone per frame
+    # without a word (3 of them, 3 frames), or JAX's broadcasting errors
+    # naming no field.
     for field in (t0s, t0s[:2]):
         for call in (
             lambda p: op.run(p, frames[:3], 0.03),
@@ -217,8 +219,8 @@ def test_black_darkness_and_1e8_are_finite(dtype):
 @pytest.mark.parametrize("background", ["gaussian", "box", "bilateral", "arithmetic"])
 def test_a_local_background_after_total_darkness_is_finite_and_whites_out(background):
     # Two black frames, then a ramp from 1e-2 to 1e4 cd/m2. A blur of black
-    # is 0; unfloored, the state went to 0, sigma to 0/0 (NaN in the
-    # diagnostics) and the ramp was erased to a flat grey. Floored as the
+    # is 0; unfloored, the state would go to 0, sigma to 0/0 (NaN in the
+    # diagnostics) and the ramp would be erased to a flat grey. Floored as the
     # global goal is, the dark-adapted viewer sees it white, as globally.
     ramp = jnp.logspace(-2.0, 4.0, 24)[None, :, None] * jnp.ones((16, 24, 3))
     frames = jnp.zeros((3, 16, 24, 3)).at[2].set(ramp)
@@ -231,7 +233,7 @@ def test_a_local_background_after_total_darkness_is_finite_and_whites_out(backgr
 
 
 def test_tone_map_refuses_what_is_not_floating_point_rgb():
-    # Integer pixels used to give integer arithmetic, a black frame, and no
+    # Integer pixels would give integer arithmetic, a black frame, and no
     # error; float16 ones powers and semi-saturations off by up to 0.97 of
     # display white (10,000 cd/m2 shown at 0.03 instead of 0.29).
     obs = op.observer(P, op.static_state(P, jnp.array(100.0), jnp.array(100.0)))
@@ -387,8 +389,8 @@ def test_bad_dt_is_named():
 
 
 def test_a_state_of_the_wrong_kind_or_shape_is_named():
-    # A local background's state maps of the wrong shape gave JAX's
-    # broadcasting error.
+    # A local background's state maps of the wrong shape are named, not
+    # left to JAX's broadcasting error.
     frames = jnp.full((3, 4, 5, 3), 100.0)
     local = op.Params(background="gaussian")
     state = op.init(local, frames[0])
@@ -407,7 +409,7 @@ def test_unknown_goal_is_named():
         op.Params(goal="median")
 
 
-# -- local time-dependent adaptation (HDR chapter, issue 5 part 4) ------------
+# -- local time-dependent adaptation (HDR chapter) ----------------------------
 
 
 def _half_lit(T=4, H=6, W=10, dark=5.0, bright=5000.0):
@@ -462,8 +464,9 @@ def test_local_run_equals_a_loop_of_step():
     [("t0_cone", -0.08), ("tau_rod", jnp.nan), ("n", -1.0), ("c_cone", jnp.inf)],
 )
 def test_a_parameter_out_of_its_range_is_named(field, value):
-    # A negative t0 drove the adaptation state below zero and a NaN one made
-    # it NaN, while the display frames stayed finite: nothing said so.
+    # A negative t0 would drive the adaptation state below zero and a NaN
+    # one make it NaN, while the display frames stay finite: nothing would
+    # say so.
     with pytest.raises(ValueError, match=f"{field}: expected a positive, finite number"):
         op.Params(**{field: value})
     with pytest.raises(ValueError, match=r"goal_fraction: expected in \(0, 1\]"):
@@ -475,8 +478,8 @@ def test_a_parameter_out_of_its_range_is_named(field, value):
 
 @pytest.mark.parametrize("ratio", [1.0, 0.5])
 def test_reference_black_must_lie_below_white(ratio):
-    # At black_ratio = 1 the display's colour exponent S_d was 0/0 and every
-    # pixel NaN; at 0.5 the tone curve was a step from 0 to 1.
+    # At black_ratio = 1 the display's colour exponent S_d is 0/0 and every
+    # pixel NaN; at 0.5 the tone curve is a step from 0 to 1.
     with pytest.raises(ValueError, match="black_ratio: expected a number above 1"):
         op.Params(black_ratio=ratio)
 
@@ -491,8 +494,9 @@ def test_unknown_background_and_bad_scale_are_named():
 @pytest.mark.parametrize("name", ["pattanaik2000", "jacobs2015", "classic"])
 def test_programs_called_as_they_are_hold_no_host_callback(name):
     # JAX's persistent compilation cache keeps no program with a host
-    # callback (equinox's error_if is one): a render compiled its operator
-    # anew at every run. Called outside jit, the operators check on the host.
+    # callback (equinox's error_if is one): with one inside, a render would
+    # compile its operator anew at every run. Called outside jit, the
+    # operators check on the host.
     import importlib
 
     module = importlib.import_module(f"jaxadapt.operators.{name}")

@@ -27,9 +27,10 @@ def stand_ins(tmp_path, monkeypatch):
 
 
 def test_a_long_report_does_not_block_the_pipe(stand_ins, monkeypatch, tmp_path):
-    # The report was read from a pipe only once pfsout had finished: past
-    # the pipe's 64 KiB the operator blocked writing it, and all three
-    # waited for ever. Run in a child process, so that a hang fails.
+    # The operator's report is read as it comes: read only once pfsout has
+    # finished, a report past the pipe's 64 KiB would block the operator
+    # writing it, and all three would wait for ever. Run in a child
+    # process, so that a hang fails.
     monkeypatch.setenv("REPORT_BYTES", str(200_000))
     frames = np.random.default_rng(0).uniform(0, 100, (2, 4, 6, 3)).astype(np.float32)
     np.save(tmp_path / "frames.npy", frames)

@@ -39,30 +39,56 @@ def _render(op, params, source, size):
     )
 
 
-# (the global 2000 operator: tests/test_cli.py's tunnel in chunks)
+def _tunnel():
+    """The 2000 operator as ``jaxadapt render --scene tunnel`` runs it, on
+    1 s of a 32x18 drive: a global state, and a foveal goal that follows
+    the scene's gaze."""
+    source = pipeline.from_scene(scenes.tunnel_drive(32, 18, duration=1.0))
+    params = pattanaik2000.Params(goal=source.goal, pixels_per_degree=source.pixels_per_degree)
+    return pattanaik2000, params, source
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("op", "params", "adaptation"),
+    ("case", "size", "atol"),
     [
-        (pattanaik2000, pattanaik2000.Params(background="gaussian", background_scale=2.0), 0.01),
-        (jacobs2015, jacobs2015.Params(), None),
-        (classic, classic.Params(), None),
+        pytest.param(
+            lambda: (
+                pattanaik2000,
+                pattanaik2000.Params(background="gaussian", background_scale=2.0),
+                _step_source(T=4, adaptation=0.01),
+            ),
+            2,
+            1e-5,
+            id="pattanaik2000-local-given-adaptation",
+        ),
+        pytest.param(
+            lambda: (jacobs2015, jacobs2015.Params(), _step_source(T=4)), 2, 1e-5, id="jacobs2015"
+        ),
+        pytest.param(lambda: (classic, classic.Params(), _step_source(T=4)), 2, 1e-5, id="classic"),
+        # 30 frames 7 at a time: four chunks and a shorter last one
+        pytest.param(_tunnel, 7, 1e-6, id="pattanaik2000-foveal-tunnel"),
     ],
 )
-def test_chunks_give_the_frames_and_diagnostics_of_one_call(op, params, adaptation):
-    source = _step_source(T=4, adaptation=adaptation)
-    whole, whole_table = _render(op, params, source, size=4)
-    out, table = _render(op, params, source, size=2)
-    np.testing.assert_allclose(out, whole, atol=1e-5)
-    assert not np.allclose(out[1], out[2], atol=1e-3)  # the step is seen
+def test_chunks_give_the_frames_and_diagnostics_of_one_call(case, size, atol):
+    """A sequence rendered ``size`` frames at a time, each chunk starting
+    from the state the last one left, gives the frames and diagnostics of
+    one call on the whole sequence."""
+    op, params, source = case()
+    whole, whole_table = _render(op, params, source, size=len(source.times))
+    out, table = _render(op, params, source, size=size)
+    np.testing.assert_allclose(out, whole, atol=atol)
+    # the sequence changes across a chunk's boundary (the step; the tunnel's frame 14)
+    assert any(not np.allclose(out[k - 1], out[k], atol=1e-3) for k in range(size, len(out), size))
     for name, column in whole_table.items():
         np.testing.assert_allclose(table[name], column, rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.slow
 def test_a_local_background_from_a_given_adaptation_compiles_run_twice(count_calls):
-    # init gave a given adaptation as scalars and run carried maps: the
-    # second chunk compiled run again, for three compilations of two shapes.
+    # init gives a given adaptation as the maps that run carries: as
+    # scalars, the second chunk would compile run again, for three
+    # compilations of two shapes.
     traces = count_calls(pattanaik2000._operator, "frame_goals")
     params = pattanaik2000.Params(background="gaussian", background_scale=2.0)
     source = _step_source(T=7, H=7, W=11, adaptation=0.5)  # a shape no other test uses
@@ -75,7 +101,7 @@ def test_collected_frames_are_copies_not_views_of_their_chunk():
     assert sorted(kept) == [0, 4] and len(table["t"]) == 7
     for frame in kept.values():
         assert frame.shape == (5, 13, 3) and frame.base is None
-    # An index past the end was left out without a word.
+    # An index past the end is named, not left out without a word.
     with pytest.raises(
         ValueError, match=r"^keep: expected frame indices from 0 to 6, got \[7, 9\]"
     ):
@@ -107,7 +133,7 @@ def test_bad_arguments_are_named(tmp_path):
         ({"multiplier": -1.0}, "multiplier: expected a positive finite factor"),
         ({"multiplier": float("nan")}, "multiplier: expected a positive finite factor"),
         ({"multiplier": 1e-50}, "multiplier: expected a positive finite factor"),
-        # infinite in float32: a NumPy overflow warning came before the message
+        # infinite in float32: the message, with no NumPy overflow warning before it
         ({"multiplier": 1e40}, "multiplier: expected a positive finite factor"),
     ):
         arguments = {"paths": [path], "fps": 30.0, "multiplier": 1.0} | kwargs
@@ -120,8 +146,8 @@ def test_bad_arguments_are_named(tmp_path):
 
 
 def test_files_are_timed_by_the_first_files_frame_rate(tmp_path):
-    # Only the command line read the header's rate: a library user's
-    # 23.976 frames/s EXR sequence was timed at the rate given, which was required.
+    # The library, not only the command line, reads the header's rate: a
+    # 23.976 frames/s EXR sequence is timed at its own rate unless fps is given.
     paths = [tmp_path / f"f{i}.exr" for i in range(3)]
     for path in paths:
         io.write_image(path, np.ones((2, 3, 3), np.float32), fps=24000 / 1001)
@@ -133,8 +159,8 @@ def test_files_are_timed_by_the_first_files_frame_rate(tmp_path):
 
 
 def test_one_path_is_one_still_image(tmp_path, monkeypatch):
-    # A string was a sequence of one-letter paths ("i: no such file"), a
-    # Path not iterable.
+    # A string or a Path is one path, not a sequence of one-letter paths
+    # ("i: no such file") nor a Path to iterate.
     monkeypatch.chdir(tmp_path)
     io.write_image(tmp_path / "still.exr", np.full((2, 3, 3), 7.0, np.float32))
     for path in ("still.exr", str(tmp_path / "still.exr"), tmp_path / "still.exr"):

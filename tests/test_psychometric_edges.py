@@ -17,7 +17,7 @@ def _run(capsys, *argv):
 
 
 def test_a_weight_beyond_float32_is_refused_up_front(tmp_path, capsys):
-    # 1e300 was cast to inf in the float32 simulation (NumPy's overflow
+    # 1e300 would be cast to inf in the float32 simulation (NumPy's overflow
     # warning on stderr), then written as weight_blur=inf with NaN PSEs.
     for value in ("1e300", "-1e39", "nan", "inf"):
         out = tmp_path / value
@@ -39,9 +39,9 @@ def test_a_weight_beyond_float32_is_refused_up_front(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_condition_without_determined_pses_has_no_group_test(tmp_path, capsys):
     # Every manipulated answer "yes": no manipulated PSE is determined, so
-    # the test has nothing to rank on that side. It said "rank-sum p = 1
-    # (exact; n = 0, 3)", wrote W = z = rank_biserial = 0, p = 1, p_exact
-    # true, and pse.png's title said p = 1.
+    # the test has nothing to rank on that side. No test is reported, not
+    # one that found nothing ("rank-sum p = 1 (exact; n = 0, 3)", W = z =
+    # rank_biserial = 0, p = 1, p_exact true).
     rng = np.random.default_rng(1)
     rows = ["participant,condition,level,response"]
     for participant in ("p1", "p2", "p3"):

@@ -175,7 +175,7 @@ def test_training_accuracy_exclusion_and_counts():
     # Training trials are left out, so flipping them does not change counts.
     np.testing.assert_array_equal(n_yes[0], n_yes[1])
     np.testing.assert_array_equal(n_yes[0], [[0, 0, 0, 30, 30]] * 2)
-    # One answer short raised JAX's own shape errors, naming no input.
+    # One answer short is named, not left to JAX's own shape errors.
     for fn in (design.training_accuracy, partial(design.counts, A)):
         with pytest.raises(ValueError, match=r"^responses: expected shape \(\.\.\., 320\)"):
             fn(t, responses[:, 1:])
@@ -277,8 +277,8 @@ def test_padding_groups_and_optional_group_columns(tmp_path):
     [
         ([], "expected a header row, got an empty file"),
         ([HEADER], "expected at least one data row"),
-        # the formats it accepts, the plain one of counts among them (that
-        # one was not said: every column was listed as required)
+        # the formats it accepts, the plain one of counts among them, rather
+        # than every column listed as required
         (
             [["participant", "condition", "response"], ["p", "c", 1]],
             "missing column 'level' .expected the columns level and response, or level, n_yes "
@@ -288,7 +288,7 @@ def test_padding_groups_and_optional_group_columns(tmp_path):
             [["participant", "condition", "level", "n_yes"], ["p", "c", 0, 1]],
             "missing column 'n_total'",
         ),
-        # no header: its first row's data, lower-cased, were said as column names
+        # no header: said so, not its first row's data, lower-cased, as column names
         (
             [["P1", "control", -0.2, 1], ["P1", "control", 0.2, 0]],
             "expected a header row naming the columns .* got the row P1, control, -0.2, 1$",
@@ -357,15 +357,15 @@ def test_grouping_keeps_every_trial(rows):
 
 def test_fits_csv_numbers_read_back_exactly_whatever_numpy_printing():
     # colour-science sets NumPy's printing to its 1.13 style, and str() of a
-    # number then kept 6 significant digits in float32, 12 in float64.
+    # number then keeps 6 significant digits in float32, 12 in float64.
     import colour  # noqa: F401
 
     for value in (np.float32(-0.012810701), np.float64(-0.012810690977614829), np.float64(1e-300)):
         assert type(value)(trials.csv_cell(value)) == value
     assert trials.csv_cell(np.float32(-0.012810701)) == "-0.012810701"
     assert trials.csv_cell("p1") == "p1" and trials.csv_cell(np.int64(7)) == "7"
-    # Nor repr of the float64 it converts to: observers.csv gave a float32
-    # weight of -0.1 as -0.10000000149011612.
+    # Nor repr of the float64 it converts to, which would write a float32
+    # weight of -0.1 to observers.csv as -0.10000000149011612.
     assert trials.csv_cell(np.float32(-0.1)) == "-0.1"
     assert (trials.csv_cell(np.bool_(True)), trials.csv_cell(False)) == ("true", "false")
     assert trials.csv_cell(np.float64(-np.inf)) == "-inf"
@@ -422,10 +422,11 @@ def test_fit_groups_writes_fits_csv(tmp_path):
 
 @pytest.mark.slow
 def test_tables_of_sizes_in_one_batch_size_share_one_compiled_fit(count_calls):
-    # The fit was compiled for every number of groups: a first `jaxadapt
-    # psychometric fit` of 14 groups took 27 s after one of 12, against
-    # 12.5 s for the 12 again. Groups are now fitted in batches of a power
-    # of two (copies of the first after them), each group as on its own.
+    # Groups are fitted in batches of a power of two (copies of the first
+    # after them), each group as on its own, so that the fit is not
+    # compiled for every number of groups: a first `jaxadapt psychometric
+    # fit` of 14 groups would take 27 s after one of 12, against 12.5 s for
+    # the 12 again.
     rng = np.random.default_rng(3)
     x = np.linspace(-0.3, 0.3, 6)  # 6 levels: no other test compiles these shapes
     pse = rng.normal(0.0, 0.1, 7)
@@ -452,8 +453,8 @@ def test_tables_of_sizes_in_one_batch_size_share_one_compiled_fit(count_calls):
 
 @pytest.mark.slow
 def test_fit_groups_keeps_the_intervals_in_the_fits_dtype():
-    # Widened to a separating gap (float64 levels), float32 intervals became
-    # float64 and fits.csv wrote them with 16 digits.
+    # Widened to a separating gap (float64 levels), float32 intervals stay
+    # float32: as float64, fits.csv would write them with 16 digits.
     groups = trials.Groups(
         ("p1", "p2"),
         ("c", "c"),

@@ -1,4 +1,4 @@
-"""Simulated observers (issue 4, part 3): judgements of rendered stimuli.
+"""Simulated observers: judgements of rendered stimuli.
 
 Tolerances on simulated data come from the binomial sampling distribution:
 the standard errors that the maximum-likelihood fit reports for pooled
@@ -238,7 +238,7 @@ def test_true_pse_has_the_implicit_gradient_and_weights_for_pse_inverts_it(mesop
     found = O.true_pse(s, dataclasses.replace(observer, weights=w))
     np.testing.assert_allclose(found[1], 0.13, atol=1e-9)
     np.testing.assert_allclose(w[1], 2 * w[2])
-    # Under jit (the check's float() of a traced value failed there).
+    # Under jit too, where the check cannot take float() of a traced value.
     jitted = jax.jit(lambda p: O.weights_for_pse(s, jnp.array([0.0, 2.0, 1.0]), p, bias=0.01))
     np.testing.assert_allclose(jitted(0.13), w, rtol=1e-12)
     with pytest.raises(ValueError, match="direction"):
@@ -324,7 +324,7 @@ def test_an_experiment_in_blocks_equals_the_whole(tmp_path):
 
 @pytest.mark.slow
 def test_bad_inputs_are_named():
-    # A population of negative noise drew observers of negative noise.
+    # A population of negative noise would draw observers of negative noise.
     for field, value in (("noise", -1.0), ("lapse", 1.0), ("noise_spread", -0.1)):
         with pytest.raises(ValueError, match=f"^Population.{field}: expected"):
             Pop.Population(**{field: value})
@@ -336,7 +336,8 @@ def test_bad_inputs_are_named():
     # and counted a dark sliver as shown.
     d = O.afterimage_displays(A, key=jax.random.key(0), width=8, height=8, lead_s=0.25 + 1e-8)
     np.testing.assert_allclose(d.times[np.asarray(d.presented)], [0.25, 0.275])
-    # Weights of another length failed at the first judgement, in a matmul.
+    # Weights of another length are named, not left to fail in a matmul at
+    # the first judgement.
     with pytest.raises(ValueError, match=r"^Observer.weights: expected one value per cue"):
         O.Observer(weights=jnp.ones(2))
     with pytest.raises(ValueError, match=r"^Population.weight_spread: expected one value per cue"):
@@ -351,6 +352,7 @@ def test_bad_inputs_are_named():
         with pytest.raises(ValueError, match="^observers: expected noise > 0"):
             # 3 observers: the batch of the vmapped experiment above (one compilation)
             E.simulate_observers(jax.random.key(0), A, O.plain_stimuli(A), identical(bad, 3))
-        # probability itself gave 0/0 = NaN (noise 0) or values beyond [0, 1].
+        # unchecked, probability itself would give 0/0 = NaN (noise 0) or
+        # values beyond [0, 1].
         with pytest.raises(ValueError, match="^observer: expected noise > 0"):
             O.probability(O.plain_stimuli(A), bad)

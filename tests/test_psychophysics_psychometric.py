@@ -92,7 +92,8 @@ def test_float32_follows_inputs_and_matches_float64():
     assert np.all(np.asarray(f32.converged)[ok])
     np.testing.assert_allclose(np.asarray(f32.pse)[ok], f64.pse[ok], rtol=1e-3, atol=1e-4)
     np.testing.assert_allclose(np.asarray(f32.b1)[ok], f64.b1[ok], rtol=1e-3)
-    # A Python number follows the arrays (n_total=30.0 made it float64).
+    # A Python number follows the arrays' dtype (n_total=30.0 does not make
+    # the fit float64).
     x, k32 = (a.astype(np.float32) for a in _pad(levels, k))
     for total in (40, 40.0):  # n < 40 trials at each level
         assert F.fit(x, k32, total).pse.dtype == jnp.float32
@@ -143,9 +144,9 @@ def test_degenerate_data_give_flags_not_nan():
 
 
 def test_all_no_places_the_pse_above_the_levels_and_all_yes_below():
-    # The slope of such data is zero up to rounding; its sign used to pick
-    # the side (levels shifted by 0.5 put all "no" at -5e5), and the group
-    # test ranked the participant at either end.
+    # The slope of such data is zero up to rounding, so its sign must not
+    # pick the side (levels shifted by 0.5 would put all "no" at -5e5), or
+    # the group test would rank the participant at either end.
     for offset in (0.0, 0.5, -0.5, 3.0):
         levels = X + offset
         out = _fit(np.stack([levels] * 2), np.array([[0] * 5, [30] * 5]), np.full((2, 5), 30))
@@ -171,12 +172,12 @@ def _all_same_gradient(levels, k, n, b0, b1):
 
 
 def test_all_same_responses_with_uneven_trials_converge_to_the_optimum():
-    # All "no" at n = 4, 3, 3, 3, 4 (found by hypothesis) did not converge:
-    # glmfit's start, whose probits then differ only through n, gave a
-    # slope of -1.7e-5, from which BFGS crept back towards the optimum's 0
-    # by 2% a step (its curvature along the slope was the start's, 45 times
-    # too large, and never updated: y's ~ 1e-17 < eps) and reached
-    # max_steps. Even n, symmetric about the middle level, started at 0.
+    # All "no" at n = 4, 3, 3, 3, 4 (found by hypothesis): glmfit's start,
+    # whose probits then differ only through n, would give a slope of
+    # -1.7e-5, from which BFGS would creep back towards the optimum's 0 by
+    # 2% a step (its curvature along the slope the start's, 45 times too
+    # large, and never updated: y's ~ 1e-17 < eps) until max_steps. (Even n,
+    # symmetric about the middle level, give a start at 0.)
     n = np.array([[4, 3, 3, 3, 4], [3, 4, 4, 4, 3]] * 2, float)
     k = np.concatenate([np.zeros((2, 5)), n[2:]])  # all "no", then all "yes"
     out = _fit(X, k, n)
@@ -200,9 +201,9 @@ def test_all_same_responses_with_uneven_trials_converge_to_the_optimum():
 
 @pytest.mark.slow
 def test_all_no_and_all_yes_take_their_side_in_float32_on_any_design():
-    # In float32 the solver stopped at slopes of up to 0.15 (not below
-    # MIN_SLOPE), whose sign put about a third of such participants on the
-    # wrong side of the levels (the command line's default precision).
+    # In float32 (the command line's default precision) the solver stops at
+    # slopes of up to 0.15 (not below MIN_SLOPE), whose sign would put about
+    # a third of such participants on the wrong side of the levels.
     levels, _, n = _random_datasets(5)
     n = np.maximum(n, 1)  # every level tested, so that "all the same" is all of them
     half = B // 2
@@ -264,15 +265,15 @@ def test_bad_input_is_named():
         F.fit(X, np.zeros(4), 30)
     with pytest.raises(ValueError, match=r"lapse: expected a fixed rate or bounds"):
         F.fit(X, np.zeros(5), 30, lapse=(0.1, 0.05))
-    # A rate of another batch shape raised JAX's broadcasting error, naming no input.
+    # A rate of another batch shape is named, not left to JAX's broadcasting error.
     with pytest.raises(ValueError, match=r"^guess: expected a rate of the batch shape \(4,\)"):
         F.fit(X, np.zeros((4, 5)), 30, guess=np.full(3, 0.1))
-    for steps in (0, -5):  # ran zero steps and reported the start
+    for steps in (0, -5):  # would run zero steps and report the start
         with pytest.raises(ValueError, match=rf"^max_steps: expected at least 1, got {steps}"):
             F.fit(X, np.zeros(5), 30, max_steps=steps)
     with pytest.raises(ValueError, match="method: expected one of"):
         Boot.bootstrap(jax.random.key(0), X, np.zeros(5), 30, method="bca")
-    # No levels gave ZeroDivisionError; 2.5 resamples ran 2.
+    # No levels would give ZeroDivisionError; 2.5 resamples would run 2.
     with pytest.raises(ValueError, match=r"levels: expected .* got shape \(0,\), no levels"):
         F.fit(np.zeros(0), np.zeros(0), np.zeros(0))
     for bad in (2.5, True, 1):
@@ -377,8 +378,8 @@ for D in (16, 1024):
 
 @pytest.mark.slow
 def test_bootstrap_memory_does_not_grow_with_the_datasets():
-    # The same batches for 1,024 datasets as for 16, so the same peak: it grew
-    # by 0.2 to 26 MB; all 102,400 fits in one call took 241 MB more.
+    # The same batches for 1,024 datasets as for 16, so the same peak: it
+    # grows by 0.2 to 26 MB, where all 102,400 fits in one call take 241 MB more.
     done = subprocess.run(
         [sys.executable, "-c", BOOTSTRAPS], capture_output=True, text=True, check=True
     )
@@ -422,10 +423,10 @@ def test_gradient_of_the_pse_matches_finite_differences():
 
 @pytest.mark.slow
 def test_fitted_lapse_rates_in_float32_reach_the_optimum_whatever_the_batch():
-    # A dataset whose float32 fit, in a batch of 100, stopped 0.27
-    # log-likelihood units short of its optimum and said it had converged:
-    # BFGS's inverse Hessian had lost positive definiteness to rounding.
-    # Now the same fit alone and in the batch, and no converged fit of the
+    # A dataset whose float32 fit, in a batch of 100, can stop 0.27
+    # log-likelihood units short of its optimum, saying it has converged,
+    # where BFGS's inverse Hessian loses positive definiteness to rounding.
+    # The same fit alone and in the batch, and no converged fit of the
     # batch below its float64 optimum by more than 0.01. (Alone: in a batch
     # of its copies, which stops when it does, compiled once with the batch.)
     rng = np.random.default_rng(5)
@@ -448,7 +449,7 @@ def test_fitted_lapse_rates_in_float32_reach_the_optimum_whatever_the_batch():
 @pytest.mark.slow
 def test_deviance_is_not_negative_in_float32():
     # One level among zero-trial ones: loglik and the saturated loglik agree
-    # but for rounding, which made the deviance -1.9e-6 in float32.
+    # but for rounding, which would make the deviance -1.9e-6 in float32.
     x = np.log10(np.array([14.0, 19, 27, 35, 49]) / 27)
     with jax.enable_x64(False):
         f = F.fit(
@@ -462,8 +463,8 @@ def test_deviance_is_not_negative_in_float32():
 @pytest.mark.slow
 def test_the_fit_is_a_program_the_compilation_cache_keeps(tmp_path, own_cache_env):
     # JAX's persistent cache keeps no program with a host callback, which
-    # the value checks raise through: with them inside, the fit (3-6 s to
-    # compile) was compiled again by every `jaxadapt psychometric fit`.
+    # the value checks raise through: with them inside, every `jaxadapt
+    # psychometric fit` would compile the fit (3-6 s) again.
     import subprocess
     import sys
 

@@ -250,9 +250,9 @@ def test_no_variation_gives_no_evidence():
 
 @pytest.mark.parametrize("method", ["auto", "exact", "asymptotic"])
 def test_an_empty_group_gives_no_test_as_scipy(method):
-    # A group left without values (every PSE undetermined) gave W = 0,
-    # z = 0, p = 1, "exact" and rank-biserial 0: a test that was not run
-    # reported as one that found nothing. SciPy gives NaN.
+    # A group left without values (every PSE undetermined) gives NaN, as
+    # SciPy does: W = 0, z = 0, p = 1, "exact" and rank-biserial 0 would
+    # report a test that was not run as one that found nothing.
     x, y = np.array([0.1, 0.2, 0.3]), np.array([0.5, 0.6])
     for x_valid, y_valid in ((True, False), (False, True), (False, False)):
         x_mask, y_mask = np.full(3, x_valid), np.full(2, y_valid)
@@ -317,8 +317,8 @@ def test_float32_stays_float32():
 
 @pytest.mark.slow
 def test_an_empty_group_gives_nan_medians_as_a_masked_out_one():
-    # nanmedian of no entries at all raised IndexError (median,
-    # hodges_lehmann and so compare); a group masked out gave NaN.
+    # NaN, as for a group masked out: nanmedian of no entries at all would
+    # raise IndexError (in median, hodges_lehmann and so compare).
     empty, y = jnp.zeros(0), jnp.array([0.5, 3.0, 4.0])
     masked = stats.compare(jnp.ones(2), y, x_mask=jnp.zeros(2, bool))
     c = stats.compare(empty, y)
@@ -328,8 +328,8 @@ def test_an_empty_group_gives_nan_medians_as_a_masked_out_one():
 
 
 def test_bad_groups_and_masks_are_named():
-    # JAX's "Zero-dimensional arrays cannot be concatenated" and its
-    # broadcasting error before.
+    # Named, not left to JAX's "Zero-dimensional arrays cannot be
+    # concatenated" or its broadcasting error.
     y = jnp.array([0.5, 3.0, 4.0])
     with pytest.raises(ValueError, match="^x: expected a group on the last axis, got a scalar"):
         stats.ranksum(jnp.array(1.0), y)

@@ -59,8 +59,9 @@ def test_inverse_undoes_the_response(L, sigma, B):
 
 
 def test_inverses_outside_their_range_are_nan_not_black():
-    # power() mapped a negative base to 0: a response beyond saturation (or
-    # negative) came back as 0 cd/m2. Now NaN goes in and out of power.
+    # A response beyond saturation (or negative) has no luminance: NaN, not
+    # the 0 cd/m2 of a power() that maps a negative base to 0. NaN goes in
+    # and out of power.
     for R, expected in ((0.6, np.nan), (-0.1, np.nan), (0.5, np.inf), (0.0, 0.0)):
         np.testing.assert_equal(float(r.naka_rushton_inverse(R, 2.0, B=0.5)), expected)
     for R, expected in ((1.1, np.nan), (-0.1, np.nan), (1.0016, np.inf), (0.0, 0.0)):
@@ -93,7 +94,7 @@ def test_slope_is_the_derivative_per_log10_unit():
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_semi_saturation_in_the_dark_is_its_limit(dtype):
-    # 5A / F(A) is 0/0 at A = 0 (NaN before): the dark value is the limit,
+    # 5A / F(A) is 0/0 at A = 0: the dark value is the limit, not NaN,
     # 2^(1/n) / 0.2 for cones and 2^(1/n) / 3800 for rods.
     A = jnp.array([0.0, 1e-15], dtype)
     for f, dark in ((r.sigma_cone, 12.9223), (r.sigma_rod, 12.9223 / 19000)):

@@ -53,8 +53,8 @@ def test_retained_memory_spares_the_page_faults_of_a_repeated_call():
     # runs independent work in an order that varies with the machine's load,
     # and now and then a temporary takes part of the freed block first, so
     # that the heap grows by one to three outputs. The heap's growth is
-    # bounded, not its timing: three processes side by side had one to three
-    # such calls among 24 each, and a CI run had three among its first five.
+    # bounded, not its timing: three processes side by side see one to three
+    # such calls among 24 each, and a CI run three among its first five.
     # Hence the median of 24 calls: most calls reuse the pages.
     assert min(_faults("default", 8)) > 12_000
     assert np.median(_faults("retain", 24)) < 1_000

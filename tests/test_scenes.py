@@ -29,8 +29,9 @@ def test_interior_with_window_is_calibrated_in_cd_m2(size):
 
 
 def test_the_mesopic_chart_has_the_papers_luminance_at_its_white_tile():
-    # Jacobs 2015 §4.2: 5.5e-2 cd/m2 "at the white tile". It was put on a
-    # perfect white diffuser, the tile (reflecting 0.89 of it) 11 % darker.
+    # Jacobs 2015 §4.2: 5.5e-2 cd/m2 "at the white tile", not on a perfect
+    # white diffuser, which would leave the tile (reflecting 0.89 of it)
+    # 11 % darker.
     frame = np.asarray(scenes.mesopic(width=96, height=64, duration=0.1).render(0.0))[0]
     assert float(photopic_luminance(frame).max()) == pytest.approx(5.5e-2, rel=1e-5)
     assert scenes.white_tile() == pytest.approx(0.887, abs=0.005)
@@ -38,7 +39,7 @@ def test_the_mesopic_chart_has_the_papers_luminance_at_its_white_tile():
 
 @pytest.mark.parametrize("name", sorted(scenes.SCENES))
 def test_every_scene_renders_one_time_as_a_batch_of_one(name):
-    # title-step and tunnel failed on a scalar time; the others accepted it.
+    # Every scene takes a scalar time, as a batch of one.
     scene = scenes.SCENES[name](width=32, height=16, duration=0.5)
     frames = np.asarray(scene.render(scene.times[0]))
     assert frames.shape == (1, 16, 32, 3) and np.all(np.isfinite(frames))
@@ -79,8 +80,9 @@ def test_a_scenes_size_is_known_without_rendering_a_frame():
     ],
 )
 def test_bad_scene_arguments_are_named(make, name):
-    # Each ran: NaN or negative frames, a plain board, a frame of width 0,
-    # a ZeroDivisionError, or a gaze read from unsorted samples.
+    # Unchecked, each would run: NaN or negative frames, a plain board, a
+    # frame of width 0, a ZeroDivisionError, or a gaze read from unsorted
+    # samples.
     with pytest.raises(ValueError, match=f"^{name}: expected"):
         make()
 
@@ -102,7 +104,7 @@ def test_the_one_chart_patch_outside_bt709_is_clipped_as_documented():
 
 
 def test_integer_sizes_of_numpy_and_jax_are_sizes():
-    # A 0-d integer array or a JAX integer was refused as "not a whole number".
+    # A 0-d integer array or a JAX integer is a whole number.
     import jax.numpy as jnp
 
     scene = scenes.mesopic(np.array(16), jnp.int32(12), np.float32(0.2), np.float32(10.0))
@@ -110,8 +112,9 @@ def test_integer_sizes_of_numpy_and_jax_are_sizes():
 
 
 def test_fixation_crosses_stay_on_their_side_of_a_small_frame():
-    # A 6-pixel-wide frame: the left cross (at x = 1, arms of 2) sliced its
-    # row from -1, which indexes from the far end: an empty arm.
+    # A 6-pixel-wide frame: the left cross (at x = 1, arms of 2) reaches
+    # past the edge, and its row sliced from -1, which indexes from the far
+    # end, would give an empty arm.
     frame = np.asarray(scenes.checkerboard(width=6, height=8, duration=0.1).render(0.0))[0]
     assert np.all(frame[4] == 0)  # both crosses' horizontal arms: the whole row
     assert np.all(frame[2:7, 1] == 0) and np.all(frame[2:7, 4] == 0)  # their vertical arms

@@ -97,7 +97,7 @@ def test_de_groot_gebhard_held_at_its_maximum_in_the_dark():
 
 @pytest.mark.parametrize("name", sorted(pupil.DIAMETERS))
 def test_pupil_in_the_dark_has_a_finite_derivative(name):
-    # Moon and Spencer's log10(0) = -inf made the derivative at L = 0 NaN.
+    # Moon and Spencer's log10(0) = -inf would make the derivative at L = 0 NaN.
     for dtype in (jnp.float32, jnp.float64):
         L = jnp.asarray(0.0, dtype)
         assert float(jax.grad(pupil.DIAMETERS[name])(L)) == 0.0

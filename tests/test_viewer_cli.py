@@ -80,7 +80,7 @@ def test_a_recorded_folder_is_not_overwritten(tmp_path, capsys):
 @pytest.mark.parametrize("given", ["afile", "afile/x"])
 def test_a_record_or_replay_in_a_file_is_one_line(given, tmp_path, capsys):
     """A file where --record or --replay wants a folder is said before
-    anything is compiled (it was the OS's error, after compiling)."""
+    anything is compiled, not left to the OS's error after compiling."""
     (tmp_path / "afile").write_text("kept")
     path = tmp_path / given
     assert _status(["view", "--no-browser", *SMALL_ARGS, "--record", str(path)]) == 2
@@ -236,8 +236,8 @@ def _damage(path, file, change):
 )  # fmt: skip
 def test_a_damaged_record_is_one_line(file, change, says, recorded, tmp_path, capsys):
     """A record edited by hand or damaged: one line that names --replay DIR,
-    the file, its row or field, what was expected and what came; status 2
-    (tracebacks, or errors that named none of them, before)."""
+    the file, its row or field, what was expected and what came; status 2,
+    and no traceback or error that names none of them."""
     _damage(recorded, file, change)
     out = tmp_path / "out"
     assert _status(["render", "--replay", str(recorded), "--out", str(out)]) == 2
@@ -324,7 +324,7 @@ def _wait_for_signals_taken(pid, timeout=60.0):
 def test_ctrl_c_while_the_view_starts_is_130_and_records_nothing(when, tmp_path):
     """Sent while the program imports JAX, or while it compiles (a signal
     then waits for the compile): one line that does not speak of --out
-    (it did), status 130, and no record."""
+    (view has none), status 130, and no record."""
     record = tmp_path / "record"
     process = processes.python(
         ["-m", "jaxadapt", "view", "--no-browser", "--port", "0", *SMALL_ARGS]
