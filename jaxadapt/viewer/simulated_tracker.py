@@ -17,6 +17,8 @@ import time
 
 import numpy as np
 
+__all__ = ["DOUBT", "NAME", "NOISE", "RATE", "SimulatedTracker", "blinks", "circle", "main"]
+
 #: The stream's default name.
 NAME = "jaxadapt-simulated-gaze"
 #: Samples a second (Pupil Core's and many screen trackers' rate).
