@@ -162,9 +162,9 @@ def _adaptation_options():
                 default=None,
                 metavar="PX",
                 help="size s of the local background estimator, pixels (default: 8): the box "
-                "||p - i|| < s of box (half-width round(s) - 1, so at least 1) and the finest "
-                "box of adaptive and multiscale, a Gaussian exp(-d^2/s^2) for gaussian and "
-                "bilateral",
+                "||p - i|| < s of box (half-width ceil(s) - 1, the largest whole offset below "
+                "s) and the finest box of adaptive and multiscale, a Gaussian exp(-d^2/s^2) "
+                "for gaussian and bilateral",
             ),
         ),
         (
