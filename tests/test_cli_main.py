@@ -108,10 +108,9 @@ def test_ctrl_c_mid_stream_joins_the_threads_and_leaves_nothing(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
-# In the full run only: now and then, on a loaded machine, the signal lands
-# while a nanobind extension module initialises (JAX's, imported with
-# jaxadapt.scenes as the parser is built), and the process aborts
-# (nanobind::python_error, status -6) instead of saying its one line.
+# The delays land the signal while the parser is built (JAX's compiled
+# extension initialising, where a raised interrupt would abort the process)
+# and while the command starts.
 @pytest.mark.slow
 @pytest.mark.parametrize("delay", [0.5, 1.2])
 def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):

@@ -66,7 +66,11 @@ def _command(argv):
     """Parse ``argv`` and run its command; its errors as one line and status 2."""
     from rich.console import Console
 
-    parser = build_parser(named_command(argv))
+    # A signal while a command's module imports JAX is raised once the import
+    # is done: raised inside the initialisation of JAX's compiled extension
+    # (nanobind), it aborts the process instead of ending the run.
+    with _signals.signals_deferred():
+        parser = build_parser(named_command(argv))
     args = parser.parse_args(argv)
     runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
     runtime.cache_compilations()  # later runs reuse this one's compiled programs
