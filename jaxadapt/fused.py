@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
 
-__all__ = ["BLOCK", "map_pixels"]
+__all__ = ["BLOCK", "map_pixels", "stored"]
 
 #: Pixels per program of the kernel: a power of two, as Triton requires;
 #: the fastest of the sizes tried.
@@ -109,3 +109,25 @@ def _pallas_map(planes_fn, frames, args, interpret):
         interpret=interpret,
     )(flat, *arrays)
     return out.reshape(frames.shape)
+
+
+def stored(fn, when=None):
+    """``fn()`` (a pytree of arrays), written to memory on the CPU before
+    the loops that read it run.
+
+    XLA's CPU backend fuses a producer into each loop that reads it, and
+    evaluates it again there: a colour matrix's three outputs each redo
+    the chain behind its inputs (the powers of Jacobs et al. 2015, Eq 11),
+    a blur's second pass redoes its first pass once per tap. Computed
+    under a conditional, whose result that backend stores, it is
+    evaluated once. ``when`` (a traced bool; by default true, but not a
+    constant XLA could fold the conditional away on) false gives zeros
+    instead, for a caller that discards them. Other platforms compute
+    ``fn()`` as it is: a GPU's conditional waits for its predicate.
+    """
+    if when is None:
+        when = jax.lax.optimization_barrier(jnp.bool_(True))
+    skipped = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(fn))
+    return jax.lax.platform_dependent(
+        cpu=lambda: jax.lax.cond(when, fn, lambda: skipped), default=fn
+    )

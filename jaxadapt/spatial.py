@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxadapt._checks import check_value, check_whole
+from jaxadapt.fused import stored
 
 __all__ = [
     "FOVEA_DEG",
@@ -215,26 +216,16 @@ def channels_last_filter(image, taps, when=None):
     channels (any trailing axes) left where a frame keeps them.
 
     Each pass reads the mirror extension only at the ends
-    (:func:`_mirrored_pass`: no padded copy). The first pass runs under a
-    conditional, whose result XLA's CPU backend stores: otherwise it fuses
-    the first pass into the second and evaluates it once per tap of the
-    second, ``(2r + 1)^2`` products a value (a 1920x1080 RGB frame at 11
-    taps: 147 ms fused, 29 ms apart, 2 cores). The second pass fuses with
-    what the caller does with its result. ``when`` (a traced bool, by
-    default true) false skips the first pass on the CPU, for a caller
-    that then discards the result. Other platforms run both passes
-    without the conditional (not measured there; a GPU's conditional
-    waits for its predicate).
+    (:func:`_mirrored_pass`: no padded copy). The first pass is
+    :func:`jaxadapt.fused.stored` on the CPU: fused into the second, XLA's
+    CPU backend evaluates it once per tap of the second, ``(2r + 1)^2``
+    products a value (a 1920x1080 RGB frame at 11 taps: 147 ms fused, 29
+    ms apart, 2 cores). The second pass fuses with what the caller does
+    with its result. ``when`` (a traced bool, by default true) false skips
+    the first pass on the CPU, for a caller that then discards the result.
     """
     taps = np.asarray(taps)
-    if when is None:  # true, but not a constant XLA could fold the conditional away on
-        when = jax.lax.optimization_barrier(jnp.bool_(True))
-
-    rows = jax.lax.platform_dependent(
-        image,
-        cpu=lambda x: jax.lax.cond(when, lambda x: _mirrored_pass(x, taps, 1), lambda x: x, x),
-        default=lambda x: _mirrored_pass(x, taps, 1),
-    )
+    rows = stored(lambda: _mirrored_pass(image, taps, 1), when)
     return _mirrored_pass(rows, taps, 0)
 
 

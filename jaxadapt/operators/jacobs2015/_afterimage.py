@@ -18,11 +18,12 @@ import jax
 import jax.numpy as jnp
 
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS
+from jaxadapt.fused import stored
 from jaxadapt.operators.jacobs2015._params import (
     PAPER_PIXELS_PER_DEGREE,
     Params,  # noqa: F401  (the examples)
 )
-from jaxadapt.operators.jacobs2015._planes import mix, planes, stacked, stored
+from jaxadapt.operators.jacobs2015._planes import mix, planes, stacked
 from jaxadapt.physiology import kinetics
 from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import channels_last_filter, discrete_gaussian_kernel

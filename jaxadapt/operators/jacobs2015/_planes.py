@@ -12,7 +12,6 @@ is evaluated once per pixel and channel. The public functions on
 :func:`stacked`, which XLA cancels where one's output is the other's input.
 """
 
-import jax
 import jax.numpy as jnp
 
 from jaxadapt.color import combine
@@ -31,24 +30,3 @@ def stacked(channels):
 def mix(M, channels):
     """The planes of ``x @ M.T`` for the planes of ``x``, ``M (3, 3)``."""
     return [combine(row, channels) for row in M]
-
-
-def stored(fn):
-    """``fn()``, a list of planes that share no work, written to memory
-    before the loops that read them run.
-
-    XLA's CPU backend fuses a producer into each loop that reads it, so a
-    loop computing a frame's three channels from planes such as the
-    afterimage gains of Eq 11 (each a power) evaluates them again for each
-    channel. Computed under a conditional (always true, but not a
-    constant XLA could fold away), the planes are stored once: the one
-    boundary that backend keeps. Each plane is then a loop of its own, so
-    planes that share an expensive chain would each recompute it. Other
-    platforms compute ``fn()`` as it is (a GPU's conditional waits for
-    its predicate).
-    """
-    always = jax.lax.optimization_barrier(jnp.bool_(True))
-    skipped = jax.tree.map(jnp.zeros_like, jax.eval_shape(fn))
-    return jax.lax.platform_dependent(
-        cpu=lambda: jax.lax.cond(always, fn, lambda: skipped), default=fn
-    )
