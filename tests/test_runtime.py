@@ -132,3 +132,36 @@ def test_the_environment_chooses_the_compilation_cache(tmp_path, own_cache_env):
     unwritable.write_text("")
     # a file: no folder can be made in it
     assert _cached_run(dict(own_cache_env, XDG_CACHE_HOME=str(unwritable))) == "None"
+
+
+def test_wide_vectors_are_asked_for_on_avx512_only(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    monkeypatch.setattr(runtime, "_has_avx512", lambda: False)
+    assert runtime.use_wide_vectors() is False
+    assert runtime.WIDE_VECTORS not in runtime.os.environ["XLA_FLAGS"]
+    monkeypatch.setattr(runtime, "_has_avx512", lambda: True)
+    assert runtime.use_wide_vectors() is True
+    assert runtime.os.environ["XLA_FLAGS"] == f"--xla_dump_to=/tmp/x {runtime.WIDE_VECTORS}"
+    # A width the user chose stays, and the flag is not added twice.
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=128")
+    assert runtime.use_wide_vectors() is False
+    assert runtime.os.environ["XLA_FLAGS"] == "--xla_cpu_prefer_vector_width=128"
+
+
+def test_xla_accepts_the_wide_vectors_flag():
+    # XLA ends the process on a flag it does not know: the JAX installed
+    # here must know this one, set after JAX is imported, as the command
+    # line sets it, and compute the same values with it.
+    program = (
+        "import jax, jax.numpy as jnp\n"
+        "from jaxadapt import runtime\n"
+        "runtime._has_avx512 = lambda: True\n"
+        "assert runtime.use_wide_vectors()\n"
+        "x = jnp.linspace(0.01, 1.0, 4096)\n"
+        "print(float(jnp.sum(jnp.exp(0.455 * jnp.log(x)))))\n"
+    )
+    env = {k: v for k, v in runtime.os.environ.items() if k != "XLA_FLAGS"}
+    run = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, env=env)
+    assert run.returncode == 0, run.stderr
+    expected = np.sum(np.linspace(0.01, 1.0, 4096) ** 0.455)
+    assert abs(float(run.stdout) - expected) < 1e-3 * expected

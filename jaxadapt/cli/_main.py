@@ -72,6 +72,7 @@ def _command(argv):
     with _signals.signals_deferred():
         parser = build_parser(named_command(argv))
     args = parser.parse_args(argv)
+    runtime.use_wide_vectors()  # AVX-512's full width for XLA (jaxadapt.runtime)
     runtime.retain_freed_memory()  # buffers of later chunks reuse pages (jaxadapt.runtime)
     runtime.cache_compilations()  # later runs reuse this one's compiled programs
     # Warnings and progress on stderr, never wrapped inside a number or a path
