@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
 
-__all__ = ["BLOCK", "map_pixels", "stored"]
+__all__ = ["BLOCK", "map_pixels", "stored", "skipped_unless"]
 
 #: Pixels per program of the kernel: a power of two, as Triton requires;
 #: the fastest of the sizes tried.
@@ -131,3 +131,17 @@ def stored(fn, when=None):
     return jax.lax.platform_dependent(
         cpu=lambda: jax.lax.cond(when, fn, lambda: skipped), default=fn
     )
+
+
+def skipped_unless(needed, fn, otherwise):
+    """``fn()`` where ``needed`` (a traced bool) holds, else ``otherwise()``,
+    both pytrees of one structure; ``fn()`` must equal ``otherwise()`` when
+    ``needed`` is false.
+
+    On the CPU a conditional, so that work that rarely changes anything
+    (the gathers that move the retinal maps, when the gaze has not moved a
+    whole pixel) is skipped, and its result is stored once rather than
+    evaluated again in every loop that reads it. Other platforms compute
+    ``fn()``: a GPU's conditional waits for its predicate.
+    """
+    return jax.lax.platform_dependent(cpu=lambda: jax.lax.cond(needed, fn, otherwise), default=fn)

@@ -56,8 +56,8 @@ def reference_frame(params, state, frame, dt, sample):
     C_inf = kinetics.calcium(R, params.c1, params.c2).target
     pixel = _operator._pixel
     shift = pixel(gaze) - pixel(state.gaze)
-    B = op.retinal_shift(state.B, shift, B_inf)
-    C = op.retinal_shift(state.C, shift, C_inf)
+    B = op.retinal_shift(jnp.moveaxis(state.B, 0, -1), shift, B_inf)  # maps kept as planes
+    C = op.retinal_shift(jnp.moveaxis(state.C, 0, -1), shift, C_inf)
     sigmas = op.acuity_sigmas(params)
     L_local = gaussian_blur(transform(frame, params.w_P), sigmas[-1])
     rho = op.normalised_log_luminance(params, L_local)
@@ -105,8 +105,8 @@ def reference_frame(params, state, frame, dt, sample):
         C_next = jnp.clip(C_inf + blurred[..., 3:], 0.0, params.c1 / params.c2)
     state = state._replace(
         A=A if params.global_adaptation else state.A,
-        B=B_next,
-        C=C_next,
+        B=jnp.moveaxis(B_next, -1, 0),
+        C=jnp.moveaxis(C_next, -1, 0),
         gaze=gaze,
         t=state.t + dt,
         frame=state.frame + 1,

@@ -14,6 +14,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxadapt.background import LUMINANCE_CEILING
+from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS
+from jaxadapt.fused import stored
 from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators.checks import (
     as_dtype,
@@ -39,14 +41,13 @@ from jaxadapt.operators.jacobs2015._afterimage import (
     blur_map_planes,
     falloff,
     receptor_planes,
-    receptors,
-    retinal_shift,
+    shifted_planes,
 )
 from jaxadapt.operators.jacobs2015._params import (
     CHANNEL_FIELDS,
     Params,  # noqa: F401  (the examples)
 )
-from jaxadapt.operators.jacobs2015._planes import planes, stacked
+from jaxadapt.operators.jacobs2015._planes import joined, mix, planar, split, stacked
 from jaxadapt.operators.jacobs2015._state import Diagnostics, State
 from jaxadapt.operators.jacobs2015._tone import (
     adaptation_target,
@@ -111,30 +112,32 @@ def _frame(params, state, frame, dt, sample):
     display frame and the frame's record (:class:`Diagnostics` without
     ``final_state``). The whole operator is this map.
 
-    The per-pixel work is written on channel planes (:mod:`._planes`); the
-    maps are read through the gaze's shift (:func:`retinal_shift`, a
-    gather fused into their readers), and where no pixel loses acuity the
-    display is computed from the frame itself (a conditional on the whole
-    frame), not from a copy of it.
+    The per-pixel work is written on contiguous channel planes
+    (:mod:`._planes`): the frame is transposed once, the maps are kept as
+    planes. The maps are moved with the gaze only when it moved a whole
+    pixel (:func:`shifted_planes`); where no pixel loses acuity the display
+    is computed from the frame itself (a conditional on the whole frame),
+    not from a copy of it. The display is composed in LMS, where Eq 12's
+    gains act, and turned into RGB once.
     """
     shape = frame.shape[:2]
     frame = saturate(frame)
-    rgb = planes(frame)
+    rgb = planar(frame)
     gaze = fixation(sample, state.gaze, shape)
     sigma = semi_saturation(params, state.A)
     rec = receptor_planes(params, rgb, sigma)
     shift = _pixel(gaze) - _pixel(state.gaze)
-    B = [retinal_shift(b, shift, fill) for b, fill in zip(planes(state.B), rec.B_inf, strict=True)]
-    C = [retinal_shift(c, shift, fill) for c, fill in zip(planes(state.C), rec.C_inf, strict=True)]
+    B = shifted_planes(split(state.B), shift, rec.B_inf)
+    C = shifted_planes(split(state.C), shift, rec.C_inf)
     rho = local_rho(params, frame)
     visibility = falloff(params, shape, gaze)
     key_noise, key_dither = (jax.random.fold_in(state.key, i) for i in range(2))
     seed = jax.random.bits(jax.random.fold_in(key_dither, state.frame), (2,), jnp.uint32)
 
-    def shown(scene):
-        response = tone_planes(params, scene, rho, sigma)
-        response = afterimage_planes(params, response, B, C, rec, visibility)
-        J = [encode(params, x) for x in response]
+    def shown(scene, lms):
+        response = tone_planes(params, scene, rho, sigma, lms)
+        response = stored(lambda: afterimage_planes(params, response, B, C, rec, visibility))
+        J = [encode(params, x) for x in mix(LMS_TO_RGB, response)]
         if params.dithering:
             J = dither_planes(params, J, seed)
         return stacked(J)
@@ -142,13 +145,14 @@ def _frame(params, state, frame, dt, sample):
     if params.acuity:
         X = acuity_noise(params, key_noise, state.t, shape)
         dropped, present = dropped_bands(params, rho, X)
-        J = jax.lax.cond(
-            present > 1,
-            lambda: shown(planes(resolve(params, frame, dropped, present))),
-            lambda: shown(rgb),
-        )
+
+        def resolved():
+            scene = planar(resolve(params, frame, dropped, present))
+            return shown(scene, mix(RGB_TO_LMS, scene))
+
+        J = jax.lax.cond(present > 1, resolved, lambda: shown(rgb, rec.lms))
     else:
-        J = shown(rgb)
+        J = shown(rgb, rec.lms)
 
     A_T = adaptation_target(params, frame, gaze)
     A = kinetics.log_adaptation_step(state.A, A_T, params.a1, params.a2, dt)
@@ -159,7 +163,7 @@ def _frame(params, state, frame, dt, sample):
     C_step = [
         kinetics.calcium_step(c, R, params.c1, params.c2, dt) for c, R in zip(C, rec.R, strict=True)
     ]
-    B_next, C_next = map(stacked, blur_map_planes(params, B_step, C_step, rec.B_inf, rec.C_inf))
+    B_next, C_next = map(joined, blur_map_planes(params, B_step, C_step, rec.B_inf, rec.C_inf))
     advanced = state._replace(
         A=A if params.global_adaptation else state.A,
         B=B_next,
@@ -192,9 +196,10 @@ def _initial_state(params, frame, gaze, key, adaptation=None):
     else:
         adaptation = jnp.clip(adaptation, params.adaptation_floor, LUMINANCE_CEILING)
         A = jnp.log10(adaptation).astype(frame.dtype)
-    rec = receptors(params, frame, semi_saturation(params, A))
+    rec = receptor_planes(params, planar(frame), semi_saturation(params, A))
     zero = jnp.zeros((), frame.dtype)
-    return State(A, rec.B_inf, rec.C_inf, gaze, zero, jnp.zeros((), jnp.int32), key)
+    B, C = joined(rec.B_inf), joined(rec.C_inf)
+    return State(A, B, C, gaze, zero, jnp.zeros((), jnp.int32), key)
 
 
 # -- the contract -------------------------------------------------------------
@@ -287,9 +292,10 @@ def step(params, state, frame, dt, *, gaze=None, key=None):
 @eqx.filter_jit
 def _step(params, state, frame, dt, gaze, on_host):
     guard, dt, verdict = check_frames_and_dt(frame, dt, 3, "frame", on_host)
-    if state.B.shape != frame.shape:
+    expected = state.B.shape[1:] + state.B.shape[:1]  # the maps are planes (3, H, W)
+    if expected != frame.shape:
         raise ValueError(
-            f"frame: expected the shape of the state's maps {state.B.shape}, got {frame.shape}"
+            f"frame: expected the shape of the state's frames {expected}, got {frame.shape}"
         )
     check_one_parameter_set(params, CHANNEL_FIELDS)
     params, state, dt = as_dtype((params, state, dt[0]), frame.dtype)

@@ -21,9 +21,10 @@ class State(NamedTuple):
     ----------
     A : array, ()
         Adaptation level, log10 cd/m2 (Eq 3).
-    B : array, (H, W, 3)
-        Bleached fraction of L, M, S pigment, in [0, 1], aligned with ``gaze``.
-    C : array, (H, W, 3)
+    B : array, (3, H, W)
+        Bleached fraction of L, M, S pigment, in [0, 1], aligned with
+        ``gaze``: one plane per cone, the layout the renderer works in.
+    C : array, (3, H, W)
         Calcium concentration of L, M, S cones, in ``[0, c1/c2]``.
     gaze : array, (2,)
         Fixation ``(x, y)``, pixels, inside the frame; the maps are aligned

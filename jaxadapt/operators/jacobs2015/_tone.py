@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt.color import combine, transform
+from jaxadapt.color import RGB_TO_LMS, combine, transform
 from jaxadapt.operators.goal import foveal_average
 from jaxadapt.operators.jacobs2015._params import Params  # noqa: F401  (the examples)
 from jaxadapt.operators.jacobs2015._planes import planes, stacked
@@ -82,18 +82,31 @@ def tone_map(params, scene, rho, sigma):
     return stacked(tone_planes(params, planes(scene), rho, sigma))
 
 
-def tone_planes(params, scene, rho, sigma):
+def tone_planes(params, scene, rho, sigma, lms=None):
     """:func:`tone_map` on channel planes: ``scene`` and the result lists of
-    three ``(H, W)`` planes (:mod:`._planes`)."""
+    three ``(H, W)`` planes (:mod:`._planes`).
+
+    Given ``lms``, the scene's cone excitations (``RGB_TO_LMS`` applied to
+    ``scene``), the response is returned in LMS instead of RGB: the colour
+    ratios are linear in the scene, so the cones' ratios are the
+    excitations over ``L_P`` (and the scotopic colour's excitations). The
+    renderer, which has the excitations and wants the response in LMS
+    (Eq 12), saves a colour matrix.
+    """
     rho = jnp.clip(rho, 0.0, 1.0)
     L_P = combine(params.w_P, scene)
     L = rho * L_P + (1.0 - rho) * combine(params.w_S, scene) if params.purkinje else L_P
     R = naka_rushton(L, sigma, 1.0, params.n)
+    grey, colour, channels = [1.0] * 3, params.scotopic_colour, scene
+    if lms is not None:
+        grey = [float(g) for g in RGB_TO_LMS.sum(axis=1)]
+        colour = jnp.asarray(RGB_TO_LMS, colour.dtype) @ colour
+        channels = lms
     positive = L_P > 0
-    safe = jnp.where(positive, L_P, 1.0)
-    ratio = [jnp.where(positive, x / safe, 1.0) for x in scene]
+    inverse = 1.0 / jnp.where(positive, L_P, 1.0)
+    ratio = [jnp.where(positive, x * inverse, g) for x, g in zip(channels, grey, strict=True)]
     if params.mesopic_colour:
-        ratio = [rho * r + (1.0 - rho) * params.scotopic_colour[c] for c, r in enumerate(ratio)]
+        ratio = [rho * r + (1.0 - rho) * colour[c] for c, r in enumerate(ratio)]
     return [r * R for r in ratio]
 
 
