@@ -38,8 +38,10 @@ def stacked(channels):
 def planar(frame):
     """The contiguous planes of ``frame (H, W, 3)``: one transposition,
     stored on the CPU (:func:`jaxadapt.fused.stored`) so that the loops
-    that read the planes do not each read the interleaved frame."""
-    return split(stored(lambda: jnp.moveaxis(frame, -1, 0)))
+    that read the planes do not each read the interleaved frame; each plane
+    its own array, which a conditional can take without a copy (a slice of
+    one array is copied into an array of its own there)."""
+    return stored(lambda: split(jnp.moveaxis(frame, -1, 0)))
 
 
 def split(x):
