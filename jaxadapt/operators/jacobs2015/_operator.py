@@ -47,7 +47,7 @@ from jaxadapt.operators.jacobs2015._params import (
     CHANNEL_FIELDS,
     Params,  # noqa: F401  (the examples)
 )
-from jaxadapt.operators.jacobs2015._planes import joined, mix, planar, split, stacked
+from jaxadapt.operators.jacobs2015._planes import joined, mix, planar, stacked
 from jaxadapt.operators.jacobs2015._state import Diagnostics, State
 from jaxadapt.operators.jacobs2015._tone import (
     adaptation_target,
