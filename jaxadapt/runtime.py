@@ -34,6 +34,7 @@ import platform
 from pathlib import Path
 
 __all__ = [
+    "WIDE_VECTORS",
     "use_wide_vectors",
     "retain_freed_memory",
     "release_freed_memory",
