@@ -50,9 +50,7 @@ def receptor_planes(params, rgb, sigma):
     """:func:`receptors` on channel planes: ``rgb`` and each field a list of
     three ``(H, W)`` planes (:mod:`._planes`)."""
     lms = mix(RGB_TO_LMS, rgb)
-    # Stored: each response's power is read by its calcium, local gain and
-    # kinetics, which XLA's CPU backend would each evaluate it again for.
-    R = stored(lambda: [naka_rushton(I, sigma, 1.0, params.n) for I in lms])
+    R = [naka_rushton(I, sigma, 1.0, params.n) for I in lms]
     return Receptors(
         lms,
         [kinetics.cone_bleaching(I, params.b1[k], params.b2[k]).target for k, I in enumerate(lms)],

@@ -15,7 +15,6 @@ import jax.numpy as jnp
 
 from jaxadapt.background import LUMINANCE_CEILING
 from jaxadapt.color import LMS_TO_RGB, RGB_TO_LMS
-from jaxadapt.fused import stored
 from jaxadapt.gaze import fixation, frame_centre
 from jaxadapt.operators.checks import (
     as_dtype,
@@ -136,7 +135,7 @@ def _frame(params, state, frame, dt, sample):
 
     def shown(scene, lms):
         response = tone_planes(params, scene, rho, sigma, lms)
-        response = stored(lambda: afterimage_planes(params, response, B, C, rec, visibility))
+        response = afterimage_planes(params, response, B, C, rec, visibility)
         J = [encode(params, x) for x in mix(LMS_TO_RGB, response)]
         if params.dithering:
             J = dither_planes(params, J, seed)
