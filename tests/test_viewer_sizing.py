@@ -51,6 +51,17 @@ def test_a_cost_that_outgrows_the_pixels_steps_down_to_a_size_that_keeps_up():
     assert asked[:2] == [LADDER[0], (1920, 1080)] and asked[-1] == size
 
 
+def test_a_frames_fixed_cost_is_outgrown_by_climbing_from_a_size_that_keeps_up():
+    # 3 ms a frame whatever its size, plus 0.01 us a pixel: 384x216's cost a
+    # pixel predicts 960x540 at most; 960x540's, measured, predicts 1920x1080,
+    # which keeps up (24 ms).
+    asked = []
+    costs = lambda s: 3e-3 + 0.01e-6 * _pixels(s)  # noqa: E731
+    size, seconds = fitting_size({}, 30.0, _measure(costs, asked))
+    assert (size, seconds) == ((1920, 1080), costs((1920, 1080)))
+    assert asked == [LADDER[0], (960, 540), (1920, 1080)]
+
+
 def test_even_the_smallest_too_slow_gives_the_smallest():
     size, seconds = fitting_size({}, 30.0, lambda spec, s: 1.0)
     assert (size, seconds) == (LADDER[0], 1.0)
