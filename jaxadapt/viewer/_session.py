@@ -21,9 +21,10 @@ import numpy as np
 
 from jaxadapt.operators import OPERATORS, Settings
 
-#: Frame size ``(W, H)`` the viewer renders at by default, pixels: the
-#: largest 16:9 size at which jacobs2015 keeps 30 frames/s on a 2-core CPU
-#: with the browser beside it (``benchmarks/bench_viewer.py``).
+#: Frame size ``(W, H)`` of a session whose spec gives none, pixels: the
+#: smallest size the command line's default is measured from
+#: (:func:`jaxadapt.viewer.fitting_size`), which keeps 30 frames/s on any
+#: machine the viewer is meant for.
 DEFAULT_SIZE = (384, 216)
 #: Longest time a frame may advance the simulation, s: a browser tab that
 #: sleeps (and stops asking for frames) resumes where it left, not after
