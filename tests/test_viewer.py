@@ -435,8 +435,16 @@ def _pages_agree(viewer, browser, script):
     from selenium.webdriver.common.keys import Keys
 
     _until(lambda: _state(viewer)["paused"], "paused")
+
+    def settled():
+        # A frame being computed when the pause came is still published (and
+        # becomes the one a new page gets): the frame count must stay put.
+        frame = _state(viewer)["frame"]
+        time.sleep(0.5)
+        return frame == _state(viewer)["frame"] == script("window.jaxadapt.header.frame") + 1
+
     _until(
-        lambda: script("window.jaxadapt.header.frame") == _state(viewer)["frame"] - 1,
+        settled,
         lambda: f"the last frame drawn: {script('window.jaxadapt.header.frame')}, {_state(viewer)}",
     )
     last, pixels, resets = (
