@@ -22,9 +22,8 @@ import numpy as np
 from jaxadapt.operators import OPERATORS, Settings
 
 #: Frame size ``(W, H)`` of a session whose spec gives none, pixels: the
-#: smallest size the command line's default is measured from
-#: (:func:`jaxadapt.viewer.fitting_size`), which keeps 30 frames/s on any
-#: machine the viewer is meant for.
+#: smallest size of the ladder on which the command line measures its
+#: default (:data:`jaxadapt.viewer.LADDER`, :func:`~jaxadapt.viewer.fitting_size`).
 DEFAULT_SIZE = (384, 216)
 #: Longest time a frame may advance the simulation, s: a browser tab that
 #: sleeps (and stops asking for frames) resumes where it left, not after
