@@ -127,16 +127,14 @@ def stored(fn, when=None):
     """
     if when is None:
         when = jax.lax.optimization_barrier(jnp.bool_(True))
-    skipped = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(fn))
-    return jax.lax.platform_dependent(
-        cpu=lambda: jax.lax.cond(when, fn, lambda: skipped), default=fn
-    )
+    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(fn))
+    return skipped_unless(when, fn, lambda: zeros)
 
 
 def skipped_unless(needed, fn, otherwise):
     """``fn()`` where ``needed`` (a traced bool) holds, else ``otherwise()``,
     both pytrees of one structure; ``fn()`` must equal ``otherwise()`` when
-    ``needed`` is false.
+    ``needed`` is false (or the caller discards it then, as :func:`stored`'s do).
 
     On the CPU a conditional, so that work that rarely changes anything
     (the gathers that move the retinal maps, when the gaze has not moved a
