@@ -19,7 +19,15 @@ from jaxadapt import scenes
 from jaxadapt.color import photopic_luminance
 from jaxadapt.operators import jacobs2015
 
-__all__ = ["Displays", "afterimage_displays", "mesopic_displays", "DISPLAYS"]
+__all__ = [
+    "Displays",
+    "AfterimageRenders",
+    "afterimage_displays",
+    "afterimage_renders",
+    "mesopic_displays",
+    "mesopic_render",
+    "DISPLAYS",
+]
 
 
 class Displays(NamedTuple):
@@ -135,13 +143,57 @@ def afterimage_displays(
     """
     del key
     _check_conditions(protocol)
+    r = afterimage_renders(
+        protocol, width=width, height=height, fps=fps, lead_s=lead_s,
+        flash_luminance=flash_luminance, j1=j1,
+    )  # fmt: skip
+    levels = jnp.asarray(protocol.levels, jnp.float32)
+    shown = jnp.asarray(r.presented)
+    scale = jnp.where(shown, 10.0 ** levels[:, None], 1.0)[..., None, None, None]  # (L, T, 1, 1, 1)
+    standard = r.scale * r.weak
+    test = jnp.stack([standard * scale, r.scale * r.strong * scale])
+    return Displays(test, standard, shown, jnp.asarray(r.blank), protocol.ambient, r.times)
+
+
+class AfterimageRenders(NamedTuple):
+    """The flash scene of §4.1.1 rendered with the weak and the strong
+    afterimage, before it is scaled to the display (:func:`afterimage_renders`).
+
+    Attributes
+    ----------
+    weak, strong : array, (T, H, W, 3)
+        Linear display values (the operator's decoded output).
+    scale : float
+        cd/m2 per unit of linear display value: the standard's flash
+        measures ``protocol.standard``.
+    presented, blank : numpy array of bool, (T,)
+        Frames of the flash, and of the black screen after it.
+    times : numpy array, (T,)
+        Time of each frame, s.
+    """
+
+    weak: jax.Array
+    strong: jax.Array
+    scale: jax.Array
+    presented: np.ndarray
+    blank: np.ndarray
+    times: np.ndarray
+
+
+def afterimage_renders(
+    protocol, *, width=32, height=32, fps=40.0, lead_s=0.25, flash_luminance=1e7, j1=(3e-4, 1e-3)
+):
+    """The flash scene rendered with the weak and strong afterimages, and the
+    display scale of the standard (see :func:`afterimage_displays`, which
+    takes the same arguments and composes the stimuli from these: a
+    stimulus is ``scale`` times a render, its flash frames times
+    ``10^level``)."""
     presentation = _whole_frames("protocol.presentation_s", protocol.presentation_s, fps, 1)
     lead_s = _whole_frames("lead_s", lead_s, fps, 0)
-    blank_s = protocol.blank_s
     scene = scenes.flash(
         width,
         height,
-        duration=lead_s + presentation + blank_s,
+        duration=lead_s + presentation + protocol.blank_s,
         fps=fps,
         luminance=flash_luminance,
         flash_duration=presentation,
@@ -169,14 +221,8 @@ def afterimage_displays(
     weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
     shown = jnp.asarray(presented)
     flash = jnp.sum(photopic_luminance(weak) * shown[:, None, None], axis=0) / np.sum(presented)
-    k = protocol.standard / jnp.max(flash)  # cd/m2 per unit of linear display value
-    levels = jnp.asarray(protocol.levels, jnp.float32)
-    scale = jnp.where(shown, 10.0 ** levels[:, None], 1.0)[..., None, None, None]  # (L, T, 1, 1, 1)
-    standard = k * weak
-    test = jnp.stack([standard * scale, k * strong * scale])
-    return Displays(
-        test, standard, jnp.asarray(presented), jnp.asarray(blank), protocol.ambient, times
-    )
+    scale = protocol.standard / jnp.max(flash)  # cd/m2 per unit of linear display value
+    return AfterimageRenders(weak, strong, scale, presented, blank, times)
 
 
 def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
@@ -217,42 +263,60 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
     """
     _check_conditions(protocol)
     whites = (*protocol.tests, protocol.standard)
-    charts = [scenes.mesopic(width, height, protocol.presentation_s, fps, white=w) for w in whites]
-    times = charts[0].times
-    frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
-    gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
-    ppd = charts[0].pixels_per_degree
-    # The charts stand in for the paper's display at a reduced size: the
-    # acuity loss keeps the paper's pixel sizes (Appendix A), not the angles
-    # of the reduced pixels, at which it would be finer than a pixel and the
-    # blur that the paper's observers saw would be lost.
-    paper = jacobs2015.PAPER_PIXELS_PER_DEGREE
-    sizes = {
-        "acuity_sigma0": jacobs2015.ACUITY_SIGMA0_DEG * paper,
-        "acuity_noise_cell": jacobs2015.ACUITY_NOISE_CELL_DEG * paper,
-    }
-    plain = jacobs2015.only(pixels_per_degree=ppd, **sizes)
-    effects = jacobs2015.only("mesopic_colour", "acuity", pixels_per_degree=ppd, **sizes)
-
-    def render(params, batch):
-        def one(f):
-            out, _ = jacobs2015.run(params, f, 1.0 / fps, gaze=gaze, key=key)
-            lin = jacobs2015.decode(params, out)
-            return lin * jnp.mean(photopic_luminance(f)) / jnp.mean(photopic_luminance(lin))
-
-        return jax.vmap(one)(batch)
-
-    control = render(plain, frames)
-    manipulated = render(effects, frames[:-1])
-    T = len(times)
+    options = dict(key=key, width=width, height=height, fps=fps)
+    control = mesopic_render(protocol, whites, effects=False, **options)
+    manipulated = mesopic_render(protocol, whites[:-1], effects=True, **options)
+    T = control.shape[1]
     return Displays(
         jnp.stack([control[:-1], manipulated]),
         control[-1],
         jnp.ones(T, bool),
         jnp.zeros(T, bool),
         protocol.ambient,
-        times,
+        np.arange(T) / fps,
     )
+
+
+def mesopic_render(
+    protocol, whites, *, effects, key, width=96, height=64, fps=8.0, paper_pixels=True
+):
+    """Charts of :func:`jaxadapt.scenes.mesopic` at the white-tile luminances
+    ``whites`` (cd/m2), rendered as :func:`mesopic_displays` renders them:
+    with the mesopic colour shift and acuity loss (``effects``) or without,
+    each scaled to the mean luminance of the chart it depicts.
+
+    ``paper_pixels``: the chart stands in for the paper's display at a
+    reduced size, so the acuity loss keeps the paper's pixel sizes
+    (Appendix A), at which the blur the paper's observers saw is kept; with
+    False the chart is drawn at its true angle (20 degrees over ``width``
+    pixels) and the acuity loss follows those pixels.
+
+    Returns
+    -------
+    array, (len(whites), T, H, W, 3)
+        cd/m2 on the display, ``T`` frames of ``protocol.presentation_s``.
+    """
+    charts = [scenes.mesopic(width, height, protocol.presentation_s, fps, white=w) for w in whites]
+    times = charts[0].times
+    frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
+    gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
+    ppd = charts[0].pixels_per_degree
+    sizes = {}
+    if paper_pixels:
+        paper = jacobs2015.PAPER_PIXELS_PER_DEGREE
+        sizes = {
+            "acuity_sigma0": jacobs2015.ACUITY_SIGMA0_DEG * paper,
+            "acuity_noise_cell": jacobs2015.ACUITY_NOISE_CELL_DEG * paper,
+        }
+    on = ("mesopic_colour", "acuity") if effects else ()
+    params = jacobs2015.only(*on, pixels_per_degree=ppd, **sizes)
+
+    def one(f):
+        out, _ = jacobs2015.run(params, f, 1.0 / fps, gaze=gaze, key=key)
+        lin = jacobs2015.decode(params, out)
+        return lin * jnp.mean(photopic_luminance(f)) / jnp.mean(photopic_luminance(lin))
+
+    return jax.vmap(one)(frames)
 
 
 #: How each preset's stimuli are made, by protocol name.
