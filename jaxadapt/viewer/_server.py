@@ -12,13 +12,9 @@ the machine's names in :mod:`~jaxadapt.viewer._addresses`.
 """
 
 import asyncio
-import hmac
-import importlib.resources
-import logging
 import math
 import time
 
-from jaxadapt.viewer._addresses import bracketed, is_wildcard, machine_names, split_authority
 from jaxadapt.viewer._messages import (
     MAX_MESSAGE,
     MAX_SOCKET_MESSAGE,
@@ -40,6 +36,7 @@ from jaxadapt.viewer._messages import (
     warn_or_clear,
 )
 from jaxadapt.viewer._simulation import Simulation
+from jaxadapt.viewer._site import Site
 
 #: Frames a page may hold unacknowledged (sent, not yet drawn).
 WINDOW = 2
@@ -59,7 +56,7 @@ class Client:
         self.ws, self.unacked, self.warnings = ws, 0, Warnings(socket_teller(ws))
 
 
-class Server:
+class Server(Site):
     """The viewer's web application around a :class:`Simulation`.
 
     Parameters
@@ -80,7 +77,8 @@ class Server:
     """
 
     def __init__(self, session, host="127.0.0.1", port=0, token=None, report=None, tracker=None):
-        self.session, self.host, self.port, self.token = session, host, port, token
+        super().__init__("jaxadapt view", host, port, token, __package__, ASSETS, PUBLIC)
+        self.session = session
         self.report, self.slow, self.tracker = report, None, tracker
         self.clients, self.trackers = set(), set()
         self.tracker_warnings = Warnings(self._say_of_tracker)
@@ -88,19 +86,9 @@ class Server:
         # commands between frames, and none while paused)
         self.effects, self.resets, self.last_frame = set(session.effects), 0, None
         self.sim = Simulation(session, self._publish_threadsafe)
-        self.loop = self.runner = None
-        self.assets = {
-            route: (importlib.resources.files(__package__).joinpath("static", name).read_bytes(), t)
-            for route, (name, t) in ASSETS.items()
-        }
 
     def app(self):
-        from aiohttp import web  # (imported when served: `import jaxadapt` stays light)
-
-        guard = web.middleware(lambda request, handler: self._guard(request, handler))
-        app = web.Application(middlewares=[guard], client_max_size=MAX_MESSAGE)
-        app.router.add_get("/", self._asset)
-        app.router.add_get("/viewer.js", self._asset)
+        app = self.web_app(MAX_MESSAGE)
         app.router.add_get("/state", self._state)
         app.router.add_get("/ws", self._page_socket)
         app.router.add_get("/gaze", self._gaze_socket)
@@ -110,16 +98,8 @@ class Server:
         """Bind, run ``prepare()`` (in a thread: e.g. compiling the step),
         then start simulating; return the page's URL. ``record()``, once
         bound, makes the :class:`Recorder` of the frames."""
-        from aiohttp import web
-
-        self.loop = asyncio.get_running_loop()
-        self.runner = web.AppRunner(
-            self.app(), access_log=None, handle_signals=False, logger=_http_logger()
-        )
-        await self.runner.setup()
+        await self.bind(self.app())
         try:
-            await web.TCPSite(self.runner, self.host, self.port).start()
-            self.port = self.runner.addresses[0][1]
             if prepare is not None:
                 await asyncio.to_thread(prepare)
             self.sim.recorder = None if record is None else record()
@@ -130,15 +110,6 @@ class Server:
         if self.tracker is not None:
             self.tracker.start(self.session.shape, self._tracked_threadsafe, self._say_threadsafe)
         return self.urls()[0]
-
-    def urls(self):
-        """The page's URLs, the first to print: bound to a wildcard address
-        (``0.0.0.0``, ``::``, ``""``), the machine's name and its addresses
-        (a wildcard address is no place a browser can go), then loopback's;
-        otherwise the one address bound."""
-        query = f"?token={self.token}" if self.token else ""
-        hosts = machine_names(self.host) if is_wildcard(self.host) else [self.host]
-        return [f"http://{bracketed(h)}:{self.port}/{query}" for h in hosts]
 
     async def close(self):
         """Close the sockets, stop the simulation (its record completed) and unbind."""
@@ -151,50 +122,6 @@ class Server:
         await self.runner.cleanup()
 
     # -- requests ---------------------------------------------------------
-
-    async def _guard(self, request, handler):
-        """Refuse requests without the token, for another host (DNS
-        rebinding) or from another origin's page."""
-        from aiohttp import web
-
-        given = request.query.get("token", "").encode()
-        public = request.path in PUBLIC
-        if self.token and not public and not hmac.compare_digest(given, self.token.encode()):
-            return web.Response(status=403, text="jaxadapt view: missing or wrong token\n")
-        host = request.headers.get("Host", "")
-        if not self.token and not self._is_own(host):
-            expected = " or ".join(f"{n}:{self.port}" for n in self._names())
-            return web.Response(
-                status=403,
-                text=f"jaxadapt view: Host: expected {expected}, got {host!r}\n",
-            )
-        origin = request.headers.get("Origin")
-        if origin is not None and not (
-            origin.startswith("http://") and self._is_own(origin[7:], host)
-        ):
-            return web.Response(status=403, text=f"jaxadapt view: refused Origin {origin!r}\n")
-        return await handler(request)
-
-    def _names(self):
-        """The names of this server without a token: loopback's and its address."""
-        return list(dict.fromkeys(["127.0.0.1", "localhost", "[::1]", bracketed(self.host)]))
-
-    def _is_own(self, authority, host=None):
-        """Whether ``authority`` (a Host header, or an Origin's ``host[:port]``)
-        names this server: one of :meth:`_names` (with a token, also the
-        request's ``host``: any name of the machine, the token guards) and
-        its port, which a browser leaves out for port 80."""
-        names = self._names()
-        if self.token and host:
-            names.append(split_authority(host)[0])
-        name, port = split_authority(authority)
-        return name is not None and name in names and port == self.port
-
-    async def _asset(self, request):
-        from aiohttp import web
-
-        body, content_type = self.assets[request.path]
-        return web.Response(body=body, content_type=content_type)
 
     async def _state(self, request):
         from aiohttp import web
@@ -404,21 +331,3 @@ class Server:
         if any(c.unacked < WINDOW for c in self.clients):
             self.sim.want()
 
-
-class _ClientErrors(logging.Filter):
-    """Drops aiohttp's report of a request it could not parse (no Host, a
-    bad header line): the client gets a 400 saying so, and the terminal
-    no traceback."""
-
-    def filter(self, record):
-        from aiohttp.http_exceptions import HttpProcessingError
-
-        error = record.exc_info[1] if record.exc_info else None
-        return not isinstance(error, HttpProcessingError)
-
-
-def _http_logger():
-    logger = logging.getLogger("jaxadapt.viewer.http")
-    if not logger.filters:
-        logger.addFilter(_ClientErrors())
-    return logger
