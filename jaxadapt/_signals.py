@@ -46,9 +46,16 @@ def interrupted_message(argv):
     when interrupted, having written nothing: :data:`INTERRUPTED`, except
     for ``view``, which has no ``--out`` and is interrupted only while it
     starts (once serving, a signal stops it), before it records anything
-    into ``--record``. Read from the words alone: an interrupt can come
+    into ``--record``, and ``experiment``, whose answers are on the disk as
+    they are given. Read from the words alone: an interrupt can come
     before the parser is imported."""
-    if named_command(argv) != "view":
+    command = named_command(argv)
+    if command == "experiment":
+        return (
+            "jaxadapt: interrupted; every answer given is kept in --out's trials.csv, and the "
+            "same command continues the session"
+        )
+    if command != "view":
         return INTERRUPTED
     recording = any(a == "--record" or a.startswith("--record=") for a in argv)
     return "jaxadapt: interrupted while starting" + (

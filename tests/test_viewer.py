@@ -16,12 +16,12 @@ import threading
 import time
 import urllib.error
 import urllib.request
-from pathlib import Path
 from types import SimpleNamespace
 
 import aiohttp
 import numpy as np
 import pytest
+from browsers import chromium
 from PIL import Image
 
 from jaxadapt.cli import main
@@ -29,7 +29,6 @@ from jaxadapt.gaze import read_gaze_csv
 from jaxadapt.viewer import Recorder, Server, Session, read_record, replay
 from jaxadapt.viewer._server import WINDOW
 
-CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 #: The flash scene, small: a 1e7 cd/m2 disk of 1.5 degrees at the centre, 12.8 px/deg.
 W, H = 128, 96
 
@@ -71,26 +70,7 @@ def viewer(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def browser(viewer, tmp_path_factory):
-    if not CHROMIUM.exists() or not CHROMEDRIVER.exists():
-        pytest.skip("needs Debian's chromium and chromium-driver (/usr/bin/chromium)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM)
-    for flag in (
-        "--headless=new",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--window-size=800,600",
-        f"--user-data-dir={tmp_path_factory.mktemp('chromium')}",
-    ):
-        options.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=options)
+    driver = chromium(tmp_path_factory.mktemp("chromium"))
     driver.get(viewer.url)
     _until(lambda: driver.execute_script("return window.jaxadapt.frames") > 3, "frames")
     yield driver

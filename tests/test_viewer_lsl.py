@@ -221,21 +221,12 @@ def test_lost_samples_are_nan_and_the_rest_frame_pixels():
 
 
 def test_the_page_says_the_tracker_drives_the_gaze(session, name, tmp_path):
-    from test_viewer import CHROMEDRIVER, CHROMIUM, _serve, _until
+    from browsers import chromium
+    from test_viewer import _serve, _until
 
-    if not CHROMIUM.exists() or not CHROMEDRIVER.exists():
-        pytest.skip("needs Debian's chromium and chromium-driver (/usr/bin/chromium)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM)
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run"):
-        options.add_argument(flag)
-    options.add_argument(f"--user-data-dir={tmp_path}")
     with SimulatedTracker(name):
         server, url, close = _serve(session, None, tracker=_lsl.open_tracker(name))
-        driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=options)
+        driver = chromium(tmp_path)
         try:
             driver.get(url)
             status = driver.find_element("id", "status")

@@ -127,4 +127,6 @@ def _smaller(args):
     """What to make smaller when the command of ``args`` runs out of memory."""
     if args.command == "render":
         return "a smaller --chunk, --size or --background-scale"
+    if args.command == "experiment":
+        return "a display of fewer pixels per degree (--display)"
     return {"fit": "fewer --resamples", "simulate": "fewer --observers"}[args.action]

@@ -21,6 +21,7 @@ COMMANDS = {
     "render": "tone-map an HDR sequence with time-dependent adaptation (Pattanaik et al. 2000)",
     "psychometric": "analyse constant-stimuli experiments (Jacobs et al. 2015, §4)",
     "view": "look around an HDR scene live in the browser, the pointer as the gaze",
+    "experiment": "run the 2015 paper's brightness studies with a participant in the browser",
 }
 
 
@@ -132,6 +133,18 @@ def _negative_values_joined(argv):
         else:
             joined.append(arg)
     return joined
+
+
+def _port(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(
+            f"expected a port from 0 to 65535 (0: any free one), got {text!r}"
+        )
+    return value
 
 
 def _folder(text):

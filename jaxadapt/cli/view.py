@@ -11,6 +11,7 @@ from jaxadapt.cli._options import (
     _folder,
     _frame_rate,
     _pixels_per_degree,
+    _port,
     _positive,
     _seed,
     _size,
@@ -18,18 +19,6 @@ from jaxadapt.cli._options import (
 from jaxadapt.cli._output import _report
 
 __all__ = ["add_parser", "view"]
-
-
-def _port(text):
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(
-            f"expected a port from 0 to 65535 (0: any free one), got {text!r}"
-        )
-    return value
 
 
 def _span(text):
