@@ -330,4 +330,3 @@ class Server(Site):
                 self.loop.create_task(send_frame(client.ws, message))
         if any(c.unacked < WINDOW for c in self.clients):
             self.sim.want()
-
