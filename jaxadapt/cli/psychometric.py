@@ -148,6 +148,7 @@ def fit(args, console):
     if args.seed is not None and args.resamples == 0:
         raise UsageError("--seed: seeds the bootstrap, which --resamples 0 leaves out")
     trial_table = trials.read_trials(args.trials)
+    _say_left_out(console, trial_table)
     conditions = list(dict.fromkeys(trial_table.condition))
     if args.control is not None and args.control not in conditions:
         raise UsageError(
@@ -223,6 +224,22 @@ def fit(args, console):
             f"{_set_by_prior(table, row) if args.keep_undetermined else ''}, {test}"
         )
     _report(f"wrote {', '.join(written)} to {out}/")
+
+
+def _say_left_out(console, table):
+    """Say which participants were excluded and which rows not analysed."""
+    from jaxadapt.psychophysics.trials import EXCLUSION
+
+    for who, accuracy in table.excluded.items():
+        console.print(
+            f"participant {who} excluded: {accuracy:.0%} of the training trials correct "
+            f"(fewer than {EXCLUSION:.0%})",
+            markup=False,
+            highlight=False,
+        )
+    said = [f"{n} {what}" for what, n in table.left_out.items() if n]
+    if said:
+        console.print(f"rows left out: {', '.join(said)}", markup=False, highlight=False)
 
 
 def _set_by_prior(table, row):
@@ -408,6 +425,7 @@ def simulate(args, console):
                 bar.advance(task, len(table["excluded"]))
     _report(
         f"{args.protocol}: {args.observers} observers, {excluded} excluded (training below "
-        f"{protocol.exclusion:.0%} correct); wrote trials.csv ({n_rows} trials), "
+        f"{protocol.exclusion:.0%} correct); wrote trials.csv ({n_rows} trials, training "
+        "included), "
         f"observers.csv, stimuli.csv to {args.out}/"
     )

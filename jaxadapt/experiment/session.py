@@ -42,7 +42,7 @@ import jax
 import numpy as np
 
 from jaxadapt.psychophysics import design
-from jaxadapt.psychophysics.trials import csv_cell
+from jaxadapt.psychophysics.trials import SESSION_COLUMNS, csv_cell
 
 __all__ = [
     "TRIAL_COLUMNS",
@@ -53,28 +53,7 @@ __all__ = [
 ]
 
 #: Columns of ``trials.csv``, in order.
-TRIAL_COLUMNS = (
-    "participant",
-    "study",
-    "block",
-    "trial",
-    "condition",
-    "level",
-    "test_luminance",
-    "standard_luminance",
-    "test_interval",
-    "answer",
-    "test_chosen",
-    "correct",
-    "rt_ms",
-    "image1_ms",
-    "image2_ms",
-    "blank1_ms",
-    "blank2_ms",
-    "dropped_frames",
-    "flagged",
-    "answered_at",
-)
+TRIAL_COLUMNS = SESSION_COLUMNS
 #: Trials between two breaks within a block.
 BREAK_EVERY = 50
 

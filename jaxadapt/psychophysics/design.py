@@ -27,6 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt.psychophysics.trials import EXCLUSION
+
 __all__ = [
     "Block",
     "Protocol",
@@ -95,7 +97,7 @@ class Protocol(eqx.Module):
     tests: tuple[float, ...]
     blocks: tuple[Block, ...]
     conditions: tuple[str, ...] = ("control", "manipulated")
-    exclusion: float = 0.7
+    exclusion: float = EXCLUSION
     presentation_s: float = 0.05
     blank_s: float = 2.5
     dark_adaptation_s: float = 0.0

@@ -215,12 +215,13 @@ def participant_names(n, first=0, count=None):
     return [f"s{i + 1:0{width}d}" for i in range(first, stop)]
 
 
-#: The columns of :func:`trial_table`, in the order written.
-TRIAL_COLUMNS = ("participant", "condition", "level", "response", "block", "test_first")
+#: The columns of :func:`trial_table`, in the order written: those of a
+#: live session's table (:data:`jaxadapt.psychophysics.trials.SESSION_COLUMNS`).
+TRIAL_COLUMNS = trial_tables.SESSION_COLUMNS
 
 
 def trial_table(protocol, experiment, first=0, total=None):
-    """The analysed trials of the included observers, as columns.
+    """Every trial of every observer, as the columns of a live session's table.
 
     ``experiment`` may be the block of observers ``first``, ``first + 1``,
     ... of an experiment of ``total`` observers (:func:`simulate_in_chunks`),
@@ -229,32 +230,53 @@ def trial_table(protocol, experiment, first=0, total=None):
     Returns
     -------
     dict of numpy arrays
-        ``participant`` (:func:`participant_names`), ``condition`` (its
-        name), ``level`` (log10 test/standard, the protocol's exact
-        values), ``response`` (0/1), ``block`` (its name) and
-        ``test_first`` (0/1), one row per trial in presentation order,
-        observer after observer. Training trials and excluded observers
-        are left out, as in the paper's analysis.
+        The columns of :data:`TRIAL_COLUMNS`, one row per trial in
+        presentation order, observer after observer: ``participant``
+        (:func:`participant_names`), ``study`` (the protocol's name),
+        ``block`` and ``condition`` (names), ``trial`` (its place in the
+        order), ``level`` (log10 test/standard, the protocol's exact
+        values), ``test_luminance`` and ``standard_luminance`` (cd/m2),
+        ``test_interval`` (1 or 2), ``answer`` (the interval chosen),
+        ``test_chosen`` (0/1), ``correct`` (training trials only), no
+        frames dropped, and empty cells for the measurements a model
+        observer has not (reaction time, durations, the time). Training
+        trials and excluded observers are kept, as a person's session
+        keeps them: the reader scores and leaves them out
+        (:func:`jaxadapt.psychophysics.trials.read_trials`), as the paper
+        does.
     """
     trials = jax.tree.map(np.asarray, experiment.trials)
-    keep = ~trials.training & ~np.asarray(experiment.excluded)[:, None]
-    count = keep.shape[0]
+    count, n = trials.level.shape
     names = np.array(participant_names(total or count, first, count), dtype=object)
-    who = np.broadcast_to(np.arange(count)[:, None], keep.shape)[keep]
+    chosen = np.asarray(experiment.responses).astype(int).ravel()
+    test_interval = np.where(trials.test_first, 1, 2).ravel()
+    training = trials.training.ravel()
+    level = np.asarray(protocol.levels)[trials.level_index].ravel()
+    correct = np.where(training, np.where(chosen == (level > 0), "true", "false"), "")
+    empty = np.full(count * n, "", dtype=object)
     return {
-        "participant": names[who],
-        "condition": np.array(protocol.conditions, dtype=object)[trials.condition[keep]],
-        "level": np.asarray(protocol.levels)[trials.level_index[keep]],
-        "response": np.asarray(experiment.responses)[keep].astype(int),
-        "block": np.array([b.name for b in protocol.blocks], dtype=object)[trials.block[keep]],
-        "test_first": trials.test_first[keep].astype(int),
+        "participant": np.repeat(names, n),
+        "study": np.full(count * n, protocol.name, dtype=object),
+        "block": np.array([b.name for b in protocol.blocks], dtype=object)[trials.block].ravel(),
+        "trial": np.tile(np.arange(n), count),
+        "condition": np.array(protocol.conditions, dtype=object)[trials.condition].ravel(),
+        "level": level,
+        "test_luminance": np.asarray(protocol.tests)[trials.level_index].ravel(),
+        "standard_luminance": np.full(count * n, protocol.standard),
+        "test_interval": test_interval,
+        "answer": np.where(chosen == 1, test_interval, 3 - test_interval),
+        "test_chosen": chosen,
+        "correct": correct.astype(object),
+        **{c: empty for c in ("rt_ms", "image1_ms", "image2_ms", "blank1_ms", "blank2_ms")},
+        "dropped_frames": np.zeros(count * n, int),
+        "flagged": np.full(count * n, "false", dtype=object),
+        "answered_at": empty,
     }
 
 
 def write_trials(path, protocol, experiment):
     """Write :func:`trial_table` as a CSV trial table (read back by
-    :func:`jaxadapt.psychophysics.trials.read_trials`; the extra columns
-    ``block`` and ``test_first`` are ignored there). Levels are written
+    :func:`jaxadapt.psychophysics.trials.read_trials`). Levels are written
     exactly (:func:`~jaxadapt.psychophysics.trials.csv_cell`). The file
     appears only once complete. Returns the number of rows."""
     with io.atomic_path(path) as tmp, open(tmp, "w", newline="") as file:
@@ -270,7 +292,7 @@ def append_trials(writer, protocol, experiment, first=0, total=None):
     table = trial_table(protocol, experiment, first, total)
     for row in zip(*(table[c] for c in TRIAL_COLUMNS), strict=True):
         writer.writerow([trial_tables.csv_cell(v) for v in row])
-    return len(table["response"])
+    return len(table["test_chosen"])
 
 
 def observer_table(protocol, stimuli, experiment, first=0, total=None):

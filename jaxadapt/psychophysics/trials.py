@@ -13,9 +13,18 @@ or one row per level with counts,
 
 ``level`` is log10 units relative to the standard and ``response`` is 1 when
 the test was judged brighter. ``participant`` and ``condition`` may be left
-out (one group, named ``"all"``). :func:`read_trials` reads and validates
-such a file and :func:`group_trials` gathers the counts of each
-(participant, condition) into padded arrays for the vmapped fit;
+out (one group, named ``"all"``).
+
+A session's table from ``jaxadapt experiment`` (or ``psychometric
+simulate``) reads as it is: its ``test_chosen`` is the response; rows of
+``block`` ``training`` are not analysed but score the participant, who is
+excluded (listed, and left out) with fewer than :data:`EXCLUSION` of them
+correct (Jacobs et al. 2015, §4.1.1); rows ``flagged`` ``true`` (a frame
+dropped while an image was up, the trial shown again) are left out.
+
+:func:`read_trials` reads and validates such a file and
+:func:`group_trials` gathers the counts of each (participant, condition)
+into padded arrays for the vmapped fit;
 :mod:`~jaxadapt.psychophysics.fit_table` fits them and writes ``fits.csv``
 (its names are also reachable from this module).
 
@@ -35,6 +44,10 @@ __all__ = [
     "TRIAL_COLUMNS",
     "COUNT_COLUMNS",
     "OPTIONAL_COLUMNS",
+    "TEST_CHOSEN",
+    "FILTER_COLUMNS",
+    "SESSION_COLUMNS",
+    "EXCLUSION",
     "TrialTable",
     "Groups",
     "OTHER_SEPARATORS",
@@ -49,6 +62,38 @@ TRIAL_COLUMNS = ("participant", "condition", "level", "response")
 COUNT_COLUMNS = ("participant", "condition", "level", "n_yes", "n_total")
 #: Group columns that may be left out.
 OPTIONAL_COLUMNS = ("participant", "condition")
+#: The name of the response in a session's table: whether the test was chosen.
+TEST_CHOSEN = "test_chosen"
+#: Columns of a session's table that say which rows are analysed.
+FILTER_COLUMNS = ("block", "flagged")
+#: The columns of a session's table, in order: ``jaxadapt experiment``
+#: writes them, and ``psychometric simulate`` (leaving empty what a model
+#: observer does not have: reaction times, measured durations, the time).
+SESSION_COLUMNS = (
+    "participant",
+    "study",
+    "block",
+    "trial",
+    "condition",
+    "level",
+    "test_luminance",
+    "standard_luminance",
+    "test_interval",
+    "answer",
+    TEST_CHOSEN,
+    "correct",
+    "rt_ms",
+    "image1_ms",
+    "image2_ms",
+    "blank1_ms",
+    "blank2_ms",
+    "dropped_frames",
+    "flagged",
+    "answered_at",
+)
+#: Fewer training trials correct than this fraction exclude a participant
+#: (the paper's 70 %, decided before its experiments).
+EXCLUSION = 0.7
 
 
 class TrialTable(NamedTuple):
@@ -65,6 +110,11 @@ class TrialTable(NamedTuple):
         Row of the file (header = 1), for messages.
     source : str
         The file, for messages.
+    excluded : dict of str to float
+        Participants left out, by their fraction of training trials correct.
+    left_out : dict of str to int
+        Rows not analysed: ``training``, ``flagged``, ``excluded`` (the
+        other rows of excluded participants).
     """
 
     participant: np.ndarray
@@ -74,6 +124,8 @@ class TrialTable(NamedTuple):
     n_total: np.ndarray
     row: np.ndarray
     source: str
+    excluded: dict = {}
+    left_out: dict = {}
 
 
 class Groups(NamedTuple):
@@ -101,6 +153,12 @@ class Groups(NamedTuple):
 def _header(path, header):
     """Index of each used column; which table format the header announces."""
     columns = [name.strip().lower() for name in header]
+    if TEST_CHOSEN in columns:
+        if "response" in columns:
+            raise ValueError(
+                f"{path}: expected either a 'response' or a '{TEST_CHOSEN}' column, got both"
+            )
+        columns[columns.index(TEST_CHOSEN)] = "response"
     repeated = [c for c in dict.fromkeys(columns) if c and columns.count(c) > 1]
     if repeated:
         raise ValueError(f"{path}: expected each column once, got '{repeated[0]}' more than once")
@@ -134,7 +192,7 @@ def _header(path, header):
             f"{path}: missing column '{missing[0]}' (expected the columns {expected}; "
             f"got {', '.join(cell.strip() for cell in header)})"
         )
-    return {c: columns.index(c) for c in required if c in columns}
+    return {c: columns.index(c) for c in (*required, *FILTER_COLUMNS) if c in columns}
 
 
 #: Separators of tables that are not comma-separated, as a spreadsheet in
@@ -250,10 +308,11 @@ def read_trials(path):
     }
     level = _numbers(path, rows, "level", column["level"])
     if "response" in column:
-        n_yes = _numbers(path, rows, "response", column["response"])
+        name = "response" if "response" in _lower(header) else TEST_CHOSEN
+        n_yes = _numbers(path, rows, name, column["response"])
         bad = (n_yes != 0) & (n_yes != 1)
         if np.any(bad):
-            _fail(path, rows, bad, "response", "0 or 1", column["response"])
+            _fail(path, rows, bad, name, "0 or 1", column["response"])
         n_total = np.ones_like(n_yes)
     else:
         n_yes, n_total = (_numbers(path, rows, c, column[c]) for c in ("n_yes", "n_total"))
@@ -267,9 +326,51 @@ def read_trials(path):
                 f"{path}, row {rows[i]}: column 'n_yes': expected at most n_total = "
                 f"{column['n_total'][i]}, got {column['n_yes'][i]!r}"
             )
-    return TrialTable(
+    table = TrialTable(
         names["participant"], names["condition"], level, n_yes, n_total, rows, str(path)
     )
+    return _analysed(table, column)
+
+
+def _lower(header):
+    return [name.strip().lower() for name in header]
+
+
+def _analysed(table, column):
+    """The rows of ``table`` that are analysed (see the module notes), the
+    excluded participants, and what was left out."""
+    path, rows = table.source, table.row
+    flagged = np.zeros(len(rows), bool)
+    if "flagged" in column:
+        values = np.array([v.strip().lower() for v in column["flagged"]])
+        bad = ~np.isin(values, ("true", "false"))
+        if np.any(bad):
+            _fail(path, rows, bad, "flagged", "true or false", column["flagged"])
+        flagged = values == "true"
+    training = np.zeros(len(rows), bool)
+    if "block" in column:
+        training = np.array([v.strip() == "training" for v in column["block"]])
+    scored = training & ~flagged
+    excluded = {}
+    for who in dict.fromkeys(table.participant[scored]):
+        mine = scored & (table.participant == who)
+        correct = (table.n_yes[mine] == 1) == (table.level[mine] > 0)
+        if np.mean(correct) < EXCLUSION:
+            excluded[who] = float(np.mean(correct))
+    out = np.isin(table.participant, list(excluded)) & ~training & ~flagged
+    keep = ~(training | flagged | out)
+    left_out = {
+        "training": int(training.sum()),
+        "flagged": int((flagged & ~training).sum()),
+        "excluded": int(out.sum()),
+    }
+    if not np.any(keep):
+        raise ValueError(
+            f"{path}: expected rows to analyse, got none ({left_out['training']} training, "
+            f"{left_out['flagged']} flagged, {left_out['excluded']} of excluded participants)"
+        )
+    kept = TrialTable(*(a[keep] for a in table[:6]), table.source)
+    return kept._replace(excluded=excluded, left_out=left_out)
 
 
 def _not_utf8(path):
