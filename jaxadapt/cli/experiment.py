@@ -19,6 +19,13 @@ def _count(text):
     return value
 
 
+def _positive_count(text):
+    value = _count(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
+
+
 def _seconds(text):
     try:
         value = float(text)
@@ -40,6 +47,8 @@ def _participant(text):
 
 def add_parser(sub):
     """Declare ``jaxadapt experiment`` and its options on the subparsers ``sub``."""
+    from jaxadapt.experiment.session import BREAK_EVERY
+
     parser = sub.add_parser(
         "experiment",
         help=COMMANDS["experiment"],
@@ -98,6 +107,14 @@ def add_parser(sub):
         "paper; 0 for afterimage)",
     )
     add(
+        "--break-every",
+        type=_positive_count,
+        default=None,
+        metavar="N",
+        help="a break every N trials within a block, besides those between blocks "
+        f"(default: {BREAK_EVERY})",
+    )
+    add(
         "--seed",
         type=_seed,
         default=None,
@@ -124,7 +141,7 @@ def experiment(args, console):
 
     from jaxadapt.cli._options import _version
     from jaxadapt.experiment.calibration import PAPER_DISPLAY, read_display
-    from jaxadapt.experiment.session import Session, SessionError, scaled_protocol
+    from jaxadapt.experiment.session import BREAK_EVERY, Session, SessionError, scaled_protocol
     from jaxadapt.experiment.stimuli import Stimuli
     from jaxadapt.psychophysics import design
 
@@ -141,6 +158,7 @@ def experiment(args, console):
         "display": display.to_json(),
         "software": _version(),
         "seed": args.seed,
+        "break_every": args.break_every or BREAK_EVERY,
     }
     try:
         scaled_protocol(design.PROTOCOLS[args.study], args.training, args.repetitions)
@@ -174,7 +192,7 @@ def experiment(args, console):
         )
     except ValueError as error:
         where = "the paper's display" if args.display is None else args.display
-        raise UsageError(f"--display: {where}: {error}") from None
+        raise UsageError(f"--display: {where}: {str(error).removeprefix('display: ')}") from None
     if session is None:
         session = Session(folder, spec)
     asyncio.run(_serve(session, stimuli, args, console))

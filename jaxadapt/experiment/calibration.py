@@ -15,7 +15,8 @@ rounds the encoded value up with the probability of its fraction, so that
 the mean *code* is right; a few codes above black, where one code step is
 a large ratio of luminance (on a gamma 2.2 display code 1 shows 0.0005 %
 of white and code 2 4.6 times that), the mean *luminance* of such
-rounding is off by tens of per cent. A psychophysical stimulus must have
+rounding is off: by 15 % at 1.2e-3 cd/m2 on a 100 cd/m2 display, the
+darkest tile of the mesopic study's chart. A psychophysical stimulus must have
 the luminance asked, so here the probability is taken between the two
 codes' emitted luminances.
 """

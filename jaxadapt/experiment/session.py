@@ -26,7 +26,7 @@ Choices where the paper is silent
   row, flagged, and are shown again at the end of their block; the
   analysis leaves flagged rows out.
 * **Breaks** between blocks and every :data:`BREAK_EVERY` trials within
-  one.
+  one (``spec["break_every"]``).
 """
 
 import csv
@@ -135,8 +135,10 @@ class Session:
         ``participant``, ``study`` (a name of
         :data:`jaxadapt.psychophysics.design.PROTOCOLS`), ``training``,
         ``repetitions``, ``dark_seconds``, ``display`` (a dict of the
-        display's fields), ``software`` and ``seed`` (None: a new random
-        one; a session continued keeps its own).
+        display's fields), ``software``, ``seed`` (None: a new random
+        one; a session continued keeps its own) and optionally
+        ``break_every`` (:data:`BREAK_EVERY`). A session continued takes
+        ``dark_seconds`` and ``break_every`` anew.
 
     Raises
     ------
@@ -207,6 +209,7 @@ class Session:
                 f"{self.folder}: holds a session of seed {saved['seed']}, not {spec['seed']}"
             )
         saved["dark_seconds"] = spec["dark_seconds"]
+        saved["break_every"] = spec.get("break_every", BREAK_EVERY)
         self.spec = saved
         self.rows = self._read_rows()
         state = self.next()
@@ -272,7 +275,8 @@ class Session:
                 answered = sum(1 for r in self.rows if r["block"] == block)
                 last = self.rows[-1]["block"] if self.rows else None
                 new_block = last is not None and last != block
-                pause = new_block or (answered > 0 and answered % BREAK_EVERY == 0)
+                every = self.spec.get("break_every", BREAK_EVERY)
+                pause = new_block or (answered > 0 and answered % every == 0)
                 return {"phase": "trial", "trial": pending[0], "break": pause}
         return {"phase": "done"}
 
