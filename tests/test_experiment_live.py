@@ -1,0 +1,190 @@
+"""``jaxadapt experiment`` run whole in Debian's headless Chromium with a
+scripted participant: the page's phases and timing, every answer written
+once through a SIGKILL of the server and a resume, and the table read by
+``psychometric fit``."""
+
+import csv
+import json
+import re
+import signal
+import socket
+import subprocess
+import threading
+import time
+
+import processes
+from browsers import chromium
+
+from jaxadapt.cli import main
+
+#: Big pixels close by: images of a few tens of pixels.
+SMALL = {"distance_m": 0.5, "pixel_pitch_mm": 1.0}
+#: Records every change of <body>'s data attributes, with the page's clock.
+OBSERVE = """
+window.seen = [];
+new MutationObserver(() => {
+  const d = document.body.dataset;
+  window.seen.push([d.phase, d.stimulus || null, d.luminance || null]);
+}).observe(document.body, {attributes: true});
+"""
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _start(argv):
+    """The command in a process of its own; it and its page's URL once serving."""
+    process = processes.python(
+        ["-m", "jaxadapt", *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    lines = []
+    for line in process.stdout:
+        lines.append(line)
+        found = re.search(r"serving (http://\S+)", line)
+        if found:
+            threading.Thread(target=lambda: lines.extend(process.stdout), daemon=True).start()
+            return process, found[1], lines
+    process.wait()
+    raise AssertionError("".join(lines))
+
+
+class Participant:
+    """Answers as a careful observer would: the interval whose image the
+    page said was brighter (the first where they are equal); space at
+    every instruction and break."""
+
+    def __init__(self, driver):
+        self.driver, self.phases, self.images = driver, [], []
+
+    def watch(self):
+        self.driver.execute_script(OBSERVE)
+
+    def _collect(self):
+        seen = self.driver.execute_script("const s = window.seen || []; window.seen = []; return s")
+        self.phases += [s[0] for s in seen]
+        self.images += [s for s in seen if s[0] in ("interval1", "interval2")]
+
+    def step(self):
+        """Act on the page's phase; return it."""
+        from selenium.webdriver.common.action_chains import ActionChains
+
+        self._collect()
+        phase = self.driver.execute_script("return document.body.dataset.phase")
+        if phase in ("instructions", "break"):
+            time.sleep(0.2)
+            ActionChains(self.driver).send_keys(" ").perform()
+            time.sleep(0.3)
+        elif phase == "respond":
+            first, second = (float(s[2]) for s in self.images[-2:])
+            ActionChains(self.driver).send_keys("1" if first >= second else "2").perform()
+            time.sleep(0.3)
+        return phase
+
+    def until(self, condition, timeout=60.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            phase = self.step()
+            if condition(phase):
+                return phase
+            time.sleep(0.03)
+        raise AssertionError(f"timed out in phase {phase!r}")
+
+
+def _rows(folder):
+    with open(folder / "trials.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_session_in_chromium_survives_sigkill_and_resumes(tmp_path, capsys):
+    display = tmp_path / "display.json"
+    display.write_text(json.dumps(SMALL))
+    out = tmp_path / "p07"
+    port = _free_port()
+    argv = ["experiment", "afterimage", "--participant", "p07", "--out", str(out), "--display"]
+    argv += [str(display), "--training", "2", "--repetitions", "0", "--break-every", "1"]
+    argv += ["--seed", "5", "--no-browser", "--port", str(port)]
+    server, url, said = _start(argv)
+    driver = chromium(tmp_path / "chromium")
+    try:
+        driver.get(url)
+        p = Participant(driver)
+        p.watch()
+        # The first trial, answered; the second up to its first blank.
+        p.until(lambda phase: len(_rows(out)) == 1 and phase == "fixation")
+        p.until(lambda phase: phase == "blank1")
+        assert not server.poll()
+        server.send_signal(signal.SIGKILL)
+        server.wait(30)
+        assert len(_rows(out)) == 1  # the answer given is on the disk, the trial in flight not
+        # The same command continues; the page, reloaded, shows the trial in flight again.
+        server, url, said = _start(argv)
+        assert "1 of 2 answered" in "".join(said)
+        driver.refresh()
+        p.watch()
+        assert p.until(lambda phase: phase in ("done", "excluded")) == "done"
+        assert server.wait(30) == 0
+    finally:
+        driver.quit()
+        if server.poll() is None:
+            server.kill()
+    assert "session complete: 2 trials answered" in "".join(said)
+    # Every phase, in order, with what each image was.
+    for phase in ("fixation", "interval1", "blank1", "interval2", "blank2", "respond", "break"):
+        assert phase in p.phases
+    assert {(s[1], float(s[2])) for s in p.images} <= {
+        ("standard", 27.0),
+        ("test", 14.0),
+        ("test", 49.0),
+    }
+    # Each trial answered once, correctly, its images timed by the page:
+    # 50 ms (3 frames at 60 Hz) and 2.5 s of blank.
+    rows = _rows(out)
+    assert sorted(r["trial"] for r in rows) == ["0", "1"]
+    for r in rows:
+        assert r["flagged"] == "false" and r["correct"] == "true"
+        for image in ("image1_ms", "image2_ms"):
+            assert 45 < float(r[image]) < 55, r
+        for blank in ("blank1_ms", "blank2_ms"):
+            assert 2480 < float(r[blank]) < 2520, r
+    session = json.loads((out / "session.json").read_text())
+    assert session["seed"] == 5 and len(session["trials"]) == 2
+    # A finished session is not run again; the fit reads its table (all of
+    # it training here: nothing left to fit, and it says so).
+    assert main(argv) == 2
+    assert "finished afterimage session" in capsys.readouterr().err
+    assert main(["psychometric", "fit", str(out / "trials.csv"), "--out", str(tmp_path / "f")]) == 2
+    assert "got none (2 training, 0 flagged" in capsys.readouterr().err
+
+
+def test_the_mesopic_session_starts_with_darkness(tmp_path):
+    display = tmp_path / "display.json"
+    display.write_text(json.dumps(SMALL))
+    out = tmp_path / "p08"
+    argv = ["experiment", "mesopic", "--participant", "p08", "--out", str(out), "--display"]
+    argv += [str(display), "--training", "2", "--repetitions", "0", "--dark-seconds", "2"]
+    argv += ["--no-browser", "--port", "0"]
+    server, url, said = _start(argv)
+    driver = chromium(tmp_path / "chromium")
+    try:
+        driver.get(url)
+        p = Participant(driver)
+        p.watch()
+        p.until(lambda phase: phase == "dark")
+        started = time.monotonic()
+        p.until(lambda phase: phase == "fixation")
+        assert time.monotonic() - started > 1.5  # the countdown ran
+        assert p.until(lambda phase: phase in ("done", "excluded")) == "done"
+        assert server.wait(30) == 0
+    finally:
+        driver.quit()
+        if server.poll() is None:
+            server.kill()
+    rows = _rows(out)
+    assert len(rows) == 2
+    for r in rows:  # 1.25 s images, 0.75 s black
+        for image in ("image1_ms", "image2_ms"):
+            assert 1230 < float(r[image]) < 1270, r
+        assert 730 < float(r["blank1_ms"]) < 770, r
