@@ -3,6 +3,7 @@ transfer functions' published values, the dithering's mean luminance, the
 stimuli against the protocol, and a session's table through answers,
 crashes and resumes."""
 
+import dataclasses
 import json
 
 import jax
@@ -15,6 +16,7 @@ from jaxadapt.experiment.calibration import PAPER_DISPLAY, Display, dithered_cod
 from jaxadapt.experiment.session import TRIAL_COLUMNS, Session, SessionError
 from jaxadapt.experiment.stimuli import Stimuli
 from jaxadapt.psychophysics import design, trials
+from jaxadapt.psychophysics.displays import afterimage_renders, mesopic_render
 
 #: A display of big pixels close by (8.7 pixels a degree): images of a few
 #: tens of pixels, rendered in seconds.
@@ -124,6 +126,24 @@ def test_afterimage_stimuli_on_the_display(afterimage):
         for c in (0, 1)
     )
     assert strong > weak > 0
+
+
+def test_stepped_renders_equal_the_runs():
+    # The experiment renders frame by frame (its images are large); the
+    # simulations run whole sequences: the same frames.
+    P = dataclasses.replace(design.MESOPIC, presentation_s=0.5)
+    options = dict(key=jax.random.key(3), width=48, height=32, fps=20.0)
+    for effects in (False, True):
+        run = mesopic_render(P, [5.5e-2, 4.1e-2], effects=effects, **options)
+        stepped = mesopic_render(P, [5.5e-2, 4.1e-2], effects=effects, stepped=True, **options)
+        np.testing.assert_allclose(stepped, run, rtol=1e-5, atol=1e-5 * float(np.max(run)))
+    run, stepped = (
+        afterimage_renders(design.AFTERIMAGE, width=24, height=24, fps=20.0, stepped=s)
+        for s in (False, True)
+    )
+    for a, b in ((run.weak, stepped.weak), (run.strong, stepped.strong)):
+        np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-5 * float(np.max(a)))
+    assert float(run.scale) == pytest.approx(float(stepped.scale), rel=1e-6)
 
 
 def test_stimuli_a_display_cannot_show_are_refused():

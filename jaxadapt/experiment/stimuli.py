@@ -184,9 +184,8 @@ class Stimuli:
         width = _even(FLASH_FIELD_DEG * ppd)
         shown = dataclasses.replace(protocol, presentation_s=self.shown / fps)
         report(f"rendering the flash scene at {width}x{width}, {fps:.4g} images/s")
-        r = afterimage_renders(
-            shown, width=width, height=width, fps=fps, lead_s=0.0
-        )  # (the blank: what the renders hold after the flash, up to whole images)
+        # (the blank: what the renders hold after the flash, up to whole images)
+        r = afterimage_renders(shown, width=width, height=width, fps=fps, lead_s=0.0, stepped=True)
         self.size = (width, width)
         presented, blank = np.flatnonzero(r.presented), np.flatnonzero(r.blank)
         renders = (np.asarray(r.weak), np.asarray(r.strong))
@@ -221,6 +220,7 @@ class Stimuli:
         shown = self.shown / fps
         protocol = dataclasses.replace(protocol, presentation_s=shown)
         options = dict(key=key, width=width, height=height, fps=fps, paper_pixels=False)
+        options["stepped"] = True  # (frame by frame: the memory of one frame)
         cells = [("s", protocol.standard, False)] + [
             (f"{c}-{j}", test, c == 1) for c in (0, 1) for j, test in enumerate(protocol.tests)
         ]

@@ -181,13 +181,22 @@ class AfterimageRenders(NamedTuple):
 
 
 def afterimage_renders(
-    protocol, *, width=32, height=32, fps=40.0, lead_s=0.25, flash_luminance=1e7, j1=(3e-4, 1e-3)
+    protocol,
+    *,
+    width=32,
+    height=32,
+    fps=40.0,
+    lead_s=0.25,
+    flash_luminance=1e7,
+    j1=(3e-4, 1e-3),
+    stepped=False,
 ):
     """The flash scene rendered with the weak and strong afterimages, and the
     display scale of the standard (see :func:`afterimage_displays`, which
     takes the same arguments and composes the stimuli from these: a
     stimulus is ``scale`` times a render, its flash frames times
-    ``10^level``)."""
+    ``10^level``). ``stepped``: one frame at a time (:func:`_stepped`),
+    the renders numpy arrays."""
     presentation = _whole_frames("protocol.presentation_s", protocol.presentation_s, fps, 1)
     lead_s = _whole_frames("lead_s", lead_s, fps, 0)
     scene = scenes.flash(
@@ -203,7 +212,6 @@ def afterimage_renders(
     half = 0.5 / fps
     presented = (times >= lead_s - half) & (times < lead_s + presentation - half)
     blank = times >= lead_s + presentation - half
-    frames = jnp.asarray(scene.render(times), jnp.float32)
     gaze = jnp.asarray(scene.gaze(times), jnp.float32)
     ppd = scene.pixels_per_degree
     params = jacobs2015.Params(
@@ -212,13 +220,23 @@ def afterimage_renders(
         pixels_per_degree=ppd,
         afterimage_blur=jacobs2015.blur_for_display(ppd, fps),
     )
+    key = jax.random.key(0)
+    if stepped:
+        dt = np.broadcast_to(scene.dt, times.shape)
+        weak, strong = (
+            _stepped(dataclasses.replace(params, j1=float(strength)),
+                     lambda i: scene.render(times[i : i + 1])[0], dt, gaze, key)
+            for strength in j1
+        )  # fmt: skip
+    else:
+        frames = jnp.asarray(scene.render(times), jnp.float32)
 
-    def render(strength):
-        version = dataclasses.replace(params, j1=strength)
-        out, _ = jacobs2015.run(version, frames, scene.dt, gaze=gaze, key=jax.random.key(0))
-        return jacobs2015.decode(version, out)
+        def render(strength):
+            version = dataclasses.replace(params, j1=strength)
+            out, _ = jacobs2015.run(version, frames, scene.dt, gaze=gaze, key=key)
+            return jacobs2015.decode(version, out)
 
-    weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
+        weak, strong = jax.vmap(render)(jnp.asarray(j1, jnp.float32))
     shown = jnp.asarray(presented)
     flash = jnp.sum(photopic_luminance(weak) * shown[:, None, None], axis=0) / np.sum(presented)
     scale = protocol.standard / jnp.max(flash)  # cd/m2 per unit of linear display value
@@ -278,7 +296,16 @@ def mesopic_displays(protocol, *, key, width=96, height=64, fps=8.0):
 
 
 def mesopic_render(
-    protocol, whites, *, effects, key, width=96, height=64, fps=8.0, paper_pixels=True
+    protocol,
+    whites,
+    *,
+    effects,
+    key,
+    width=96,
+    height=64,
+    fps=8.0,
+    paper_pixels=True,
+    stepped=False,
 ):
     """Charts of :func:`jaxadapt.scenes.mesopic` at the white-tile luminances
     ``whites`` (cd/m2), rendered as :func:`mesopic_displays` renders them:
@@ -291,6 +318,9 @@ def mesopic_render(
     False the chart is drawn at its true angle (20 degrees over ``width``
     pixels) and the acuity loss follows those pixels.
 
+    ``stepped``: one chart and one frame at a time (:func:`_stepped`), a
+    numpy array.
+
     Returns
     -------
     array, (len(whites), T, H, W, 3)
@@ -298,7 +328,6 @@ def mesopic_render(
     """
     charts = [scenes.mesopic(width, height, protocol.presentation_s, fps, white=w) for w in whites]
     times = charts[0].times
-    frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
     gaze = jnp.asarray(charts[0].gaze(times), jnp.float32)
     ppd = charts[0].pixels_per_degree
     sizes = {}
@@ -311,12 +340,40 @@ def mesopic_render(
     on = ("mesopic_colour", "acuity") if effects else ()
     params = jacobs2015.only(*on, pixels_per_degree=ppd, **sizes)
 
+    def scaled(lin, frames):  # shown at the mean luminance of the chart
+        return lin * jnp.mean(photopic_luminance(frames)) / jnp.mean(photopic_luminance(lin))
+
+    if stepped:
+        dt, rendered = np.full(len(times), 1.0 / fps), []
+        for chart in charts:
+            first = chart.render(times[:1])  # (a steady chart: every frame is its first)
+            lin = _stepped(params, lambda i, f=first: f[0], dt, gaze, key)
+            rendered.append(np.asarray(scaled(lin, first)))
+        return np.stack(rendered)
+
     def one(f):
         out, _ = jacobs2015.run(params, f, 1.0 / fps, gaze=gaze, key=key)
-        lin = jacobs2015.decode(params, out)
-        return lin * jnp.mean(photopic_luminance(f)) / jnp.mean(photopic_luminance(lin))
+        return scaled(jacobs2015.decode(params, out), f)
 
+    frames = jnp.stack([jnp.asarray(c.render(times), jnp.float32) for c in charts])
     return jax.vmap(one)(frames)
+
+
+def _stepped(params, frame_at, dt, gaze, key):
+    """Decoded display frames ``(T, H, W, 3)`` of ``frame_at(i)`` (the scene's
+    frame ``i``, cd/m2) held ``dt[i]`` s with the gaze at ``gaze[i]``, one
+    :func:`jaxadapt.operators.jacobs2015.step` at a time, kept on the host:
+    the frames of :func:`jaxadapt.operators.jacobs2015.run` in the memory
+    of one (a run of 25 frames of 1282x854 took 3 GB)."""
+    frame = jnp.asarray(frame_at(0), jnp.float32)
+    state = jacobs2015.init(params, frame, gaze=gaze[0], key=key)
+    lin = np.empty((len(dt), *frame.shape), np.float32)
+    for i in range(len(dt)):
+        if i:
+            frame = jnp.asarray(frame_at(i), jnp.float32)
+        state, out = jacobs2015.step(params, state, frame, float(dt[i]), gaze=gaze[i])
+        lin[i] = np.asarray(jacobs2015.decode(params, out))
+    return lin
 
 
 #: How each preset's stimuli are made, by protocol name.
