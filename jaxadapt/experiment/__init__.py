@@ -7,7 +7,8 @@
 - :mod:`~jaxadapt.experiment.session`: one participant's session, its
   plan and its table of answers, continued after a crash;
 - :mod:`~jaxadapt.experiment.server`: the page that runs the trials and
-  the server behind it.
+  the server behind it; :mod:`~jaxadapt.experiment.scripted`: a scripted
+  participant that drives the page in a browser (tests, rehearsals).
 
 Jacobs, Gallo, Cooper, Pulli, Levoy (2015), *Simulating the Visual
 Experience of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1-4.2.
@@ -15,7 +16,7 @@ Experience of Very Bright and Very Dark Scenes*, ACM TOG 34(3), §4.1-4.2.
 
 import importlib
 
-__all__ = ["calibration", "session", "server", "stimuli"]
+__all__ = ["calibration", "scripted", "session", "server", "stimuli"]
 
 
 def __getattr__(name):

@@ -131,6 +131,10 @@ async function instructions() {
     );
   }
   await key({ " ": true });
+  // Full screen where the browser allows it (a key press may ask for it).
+  if (document.documentElement.requestFullscreen) {
+    document.documentElement.requestFullscreen().catch(() => {});
+  }
   say("");
 }
 
