@@ -27,6 +27,7 @@ def chromium(profile, size=(800, 600)):
         "--disable-sync",
         "--no-first-run",
         f"--window-size={size[0]},{size[1]}",
+        f"--screen-info={{{size[0]}x{size[1]}}}",  # (the size a page made full screen takes)
         f"--user-data-dir={profile}",
     ):
         options.add_argument(flag)

@@ -91,13 +91,16 @@ def afterimage():
     return Stimuli(design.AFTERIMAGE, Display(**SMALL), jax.random.key(0))
 
 
-def _luminance(display, png):
+def _codes(png):
     from io import BytesIO
 
     from PIL import Image
 
-    codes = np.asarray(Image.open(BytesIO(png)).convert("RGB"))
-    return display.emitted(codes) @ np.array([0.2126, 0.7152, 0.0722])
+    return np.asarray(Image.open(BytesIO(png)).convert("RGB"))
+
+
+def _luminance(display, png):
+    return display.emitted(_codes(png)) @ np.array([0.2126, 0.7152, 0.0722])
 
 
 def test_afterimage_stimuli_on_the_display(afterimage):
@@ -126,6 +129,30 @@ def test_afterimage_stimuli_on_the_display(afterimage):
         for c in (0, 1)
     )
     assert strong > weak > 0
+
+
+def test_mesopic_charts_measure_their_level_at_the_white_tile():
+    # "5.5e-2 cd/m2 at the white tile" (§4.2.1): measured on the display
+    # model, over the 25 dithered images of an interval; a manipulated
+    # chart has its control's mean light.
+    from jaxadapt.color import photopic_luminance
+    from jaxadapt.experiment.stimuli import _white_tile
+
+    d = Display(**SMALL)
+    st = Stimuli(design.MESOPIC, d, jax.random.key(0))
+    tile = _white_tile(*st.size)
+
+    def shown(interval):
+        images = interval.images[: interval.shown]
+        light = [photopic_luminance(d.emitted(_codes(st.images[k]))) for k in images]
+        return np.mean([y[tile].mean() for y in light]), np.mean(light)
+
+    white, _ = shown(st.interval())
+    assert white == pytest.approx(5.5e-2, rel=0.01)
+    for j, level in enumerate(design.MESOPIC.tests):
+        (white, mean), (_, manipulated) = shown(st.interval(0, j)), shown(st.interval(1, j))
+        assert white == pytest.approx(level, rel=0.01)
+        assert manipulated == pytest.approx(mean, rel=0.01)
 
 
 def test_stepped_renders_equal_the_runs():

@@ -44,6 +44,14 @@ def _start(argv):
     raise AssertionError("".join(lines))
 
 
+def _said(lines, words, timeout=10.0):
+    """Wait until the command's output (read by a thread) holds ``words``."""
+    end = time.monotonic() + timeout
+    while words not in "".join(lines):
+        assert time.monotonic() < end, "".join(lines)
+        time.sleep(0.05)
+
+
 def _rows(folder):
     with open(folder / "trials.csv", newline="") as f:
         return list(csv.DictReader(f))
@@ -81,7 +89,7 @@ def test_a_session_in_chromium_survives_sigkill_and_resumes(tmp_path, capsys):
         driver.quit()
         if server.poll() is None:
             server.kill()
-    assert "session complete: 2 trials answered" in "".join(said)
+    _said(said, "session complete: 2 trials answered")
     # Every phase, and what each image was.
     for phase in ("fixation", "interval1", "blank1", "interval2", "blank2", "respond", "break"):
         assert phase in p.phases
@@ -135,3 +143,33 @@ def test_the_mesopic_session_starts_with_darkness(tmp_path):
         for image in ("image1_ms", "image2_ms"):
             assert 1230 < float(r[image]) < 1270, r
         assert 730 < float(r["blank1_ms"]) < 770, r
+
+
+def test_ctrl_c_stops_the_session_with_130_and_the_page_carries_on(tmp_path):
+    # Ctrl-C: status 130, the answers kept; the page left open waits for
+    # the server and, once the same command serves again, carries on.
+    display = tmp_path / "display.json"
+    display.write_text(json.dumps(SMALL))
+    out = tmp_path / "p09"
+    argv = ["experiment", "afterimage", "--participant", "p09", "--out", str(out), "--display"]
+    argv += [str(display), "--training", "2", "--repetitions", "0", "--no-browser"]
+    argv += ["--port", str(_free_port())]
+    server, url, said = _start(argv)
+    driver = chromium(tmp_path / "chromium")
+    try:
+        driver.get(url)
+        p = ScriptedParticipant(driver)
+        p.watch()
+        p.until(lambda phase: len(_rows(out)) == 1 and phase == "fixation")
+        server.send_signal(signal.SIGINT)
+        assert server.wait(30) == 128 + signal.SIGINT
+        _said(said, "stopped at 1 of 2 trials answered")
+        _said(said, "jaxadapt: interrupted; every answer given is kept")
+        server, url, said = _start(argv)
+        assert p.until(lambda phase: phase == "done") == "done"  # (no reload)
+        assert server.wait(30) == 0
+    finally:
+        driver.quit()
+        if server.poll() is None:
+            server.kill()
+    assert sorted(r["trial"] for r in _rows(out)) == ["0", "1"]

@@ -17,6 +17,13 @@ Choices where the paper is silent
   afterimage's flash (50 ms) is then one image at the usual refresh
   rates, and the afterimage fades and the acuity noise moves at the rate
   the simulations render them.
+* **The mesopic chart's level** is its white tile's: each chart is rendered
+  as the simulations render it (scaled to the mean luminance of the chart
+  it depicts, where the tone curve leaves the white tile about 30 %
+  darker), then scaled so that the control chart's white tile measures
+  the level on the display, "5.5e-2 cd/m2 at the white tile" (§4.2.1);
+  the manipulated chart of a level takes its control's scale, so that the
+  two have the same mean light and differ in colour and detail only.
 * **Fixation target.** A cross of 0.5 degrees, 2.5 degrees below the
   centre of the flash (the flash has a 1.5-degree radius: "just below the
   position of the flash unit", §4.1.1), at the centre of the chart for the
@@ -31,6 +38,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+from jaxadapt.color import photopic_luminance
 from jaxadapt.experiment.calibration import dithered_codes
 
 __all__ = [
@@ -221,12 +229,18 @@ class Stimuli:
         protocol = dataclasses.replace(protocol, presentation_s=shown)
         options = dict(key=key, width=width, height=height, fps=fps, paper_pixels=False)
         options["stepped"] = True  # (frame by frame: the memory of one frame)
-        cells = [("s", protocol.standard, False)] + [
-            (f"{c}-{j}", test, c == 1) for c in (0, 1) for j, test in enumerate(protocol.tests)
+        tile = _white_tile(width, height)
+        cells = [("s", None, protocol.standard)] + [
+            (f"{c}-{j}", j, test) for c in (0, 1) for j, test in enumerate(protocol.tests)
         ]
-        for n, (name, white, effects) in enumerate(cells):
+        scales = {}
+        for n, (name, level, white) in enumerate(cells):
             report(f"rendering chart {n + 1} of {len(cells)} at {width}x{height}")
+            effects = name.startswith("1-")
             frames = np.asarray(mesopic_render(protocol, [white], effects=effects, **options)[0])
+            if not effects:  # the white tile of the control chart measures the level
+                scales[level] = white / np.mean(photopic_luminance(frames[:, tile]))
+            frames *= scales[level]  # (a manipulated chart: its control's, same mean light)
             for i in range(self.shown):
                 self._add(f"c-{name}-{i}", frames[min(i, len(frames) - 1)], "colour chart")
         self.images["black"] = png(np.zeros((height, width, 3), np.uint8))
@@ -257,6 +271,16 @@ def _check_levels(protocol, display):
             f"display: black {display.black:g} cd/m2 is not below the dimmest level of the "
             f"{protocol.name} study, {dimmest:g} cd/m2"
         )
+
+
+def _white_tile(width, height):
+    """Mask ``(H, W)`` of the chart's white tile (no. 19, its brightest) in
+    :func:`jaxadapt.scenes.mesopic` at this size."""
+    from jaxadapt import scenes
+
+    chart = scenes.mesopic(width, height, 1.0, 1.0)
+    Y = photopic_luminance(np.asarray(chart.render(chart.times[:1])[0]))
+    return np.asarray(Y > 0.95 * np.max(Y))
 
 
 def _even(pixels):

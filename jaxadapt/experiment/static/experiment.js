@@ -120,22 +120,39 @@ async function framePeriod(n) {
 
 async function instructions() {
   phase("instructions");
-  const words = `${setup.instructions}\n\n${setup.keys}`;
-  say(words);
+  say(`${setup.instructions}\n\n${setup.keys}`);
   const period = await framePeriod(30);
-  const measured = 1000 / period;
-  if (Math.abs(measured - setup.refresh_hz) > 0.03 * setup.refresh_hz) {
-    say(
-      `${words}\n\nThis display shows ${measured.toFixed(1)} frames/s; the display ` +
-        `file says ${setup.refresh_hz}: images would not last as planned.`,
-    );
-  }
+  warn(period);
+  addEventListener("resize", () => warn(period));
   await key({ " ": true });
   // Full screen where the browser allows it (a key press may ask for it).
   if (document.documentElement.requestFullscreen) {
     document.documentElement.requestFullscreen().catch(() => {});
   }
   say("");
+}
+
+// The instructions, with what would keep the images from being shown as
+// planned: another frame rate than the display file's, a window smaller
+// than the images.
+function warn(period) {
+  if (body.dataset.phase !== "instructions") return;
+  const problems = [];
+  const measured = 1000 / period;
+  if (Math.abs(measured - setup.refresh_hz) > 0.03 * setup.refresh_hz) {
+    problems.push(
+      `This display shows ${measured.toFixed(1)} frames/s; the display file says ` +
+        `${setup.refresh_hz}: images would not last as planned.`,
+    );
+  }
+  const [w, h] = setup.size;
+  if (canvas.width < w || canvas.height < h) {
+    problems.push(
+      `The window is ${canvas.width}x${canvas.height} pixels, smaller than the images ` +
+        `(${w}x${h}): make it full screen (F11) or larger.`,
+    );
+  }
+  say([`${setup.instructions}\n\n${setup.keys}`, ...problems].join("\n\n"));
 }
 
 async function dark(seconds) {
