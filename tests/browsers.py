@@ -8,9 +8,11 @@ import pytest
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 
 
-def chromium(profile, size=(800, 600)):
-    """A headless Chromium of its own ``profile`` folder; skips the test
-    where Debian's chromium and chromium-driver are not installed."""
+def chromium(profile, size=(800, 600), screen=None):
+    """A headless Chromium of its own ``profile`` folder, its window ``size``
+    on a screen of ``screen`` (default: the window's; the size a page made
+    full screen takes); skips the test where Debian's chromium and
+    chromium-driver are not installed."""
     if not CHROMIUM.exists() or not CHROMEDRIVER.exists():
         pytest.skip("needs Debian's chromium and chromium-driver (/usr/bin/chromium)")
     from selenium import webdriver
@@ -27,7 +29,7 @@ def chromium(profile, size=(800, 600)):
         "--disable-sync",
         "--no-first-run",
         f"--window-size={size[0]},{size[1]}",
-        f"--screen-info={{{size[0]}x{size[1]}}}",  # (the size a page made full screen takes)
+        "--screen-info={{{}x{}}}".format(*(screen or size)),
         f"--user-data-dir={profile}",
     ):
         options.add_argument(flag)

@@ -44,6 +44,17 @@ def _start(argv):
     raise AssertionError("".join(lines))
 
 
+def _command(tmp_path, study, participant, *options):
+    """``jaxadapt experiment`` of a 2-training-trial session on a small
+    display into ``tmp_path / participant``: its arguments and folder."""
+    display = tmp_path / "display.json"
+    display.write_text(json.dumps(SMALL))
+    out = tmp_path / participant
+    argv = ["experiment", study, "--participant", participant, "--out", str(out), "--display"]
+    argv += [str(display), "--training", "2", "--repetitions", "0", "--no-browser", *options]
+    return argv, out
+
+
 def _said(lines, words, timeout=10.0):
     """Wait until the command's output (read by a thread) holds ``words``."""
     end = time.monotonic() + timeout
@@ -58,15 +69,11 @@ def _rows(folder):
 
 
 def test_a_session_in_chromium_survives_sigkill_and_resumes(tmp_path, capsys):
-    display = tmp_path / "display.json"
-    display.write_text(json.dumps(SMALL))
-    out = tmp_path / "p07"
-    port = _free_port()
-    argv = ["experiment", "afterimage", "--participant", "p07", "--out", str(out), "--display"]
-    argv += [str(display), "--training", "2", "--repetitions", "0", "--break-every", "1"]
-    argv += ["--seed", "5", "--no-browser", "--port", str(port)]
+    options = ("--break-every", "1", "--seed", "5", "--port", str(_free_port()))
+    argv, out = _command(tmp_path, "afterimage", "p07", *options)
     server, url, said = _start(argv)
-    driver = chromium(tmp_path / "chromium")
+    # (a screen larger than the window: the page made full screen grows)
+    driver = chromium(tmp_path / "chromium", screen=(1024, 768))
     try:
         driver.get(url)
         p = ScriptedParticipant(driver)
@@ -74,6 +81,7 @@ def test_a_session_in_chromium_survives_sigkill_and_resumes(tmp_path, capsys):
         # The first trial, answered; the second up to its first blank.
         p.until(lambda phase: len(_rows(out)) == 1 and phase == "fixation")
         p.until(lambda phase: phase == "blank1")
+        assert driver.find_element("id", "text").text == ""  # (no words in a trial)
         assert not server.poll()
         server.send_signal(signal.SIGKILL)
         server.wait(30)
@@ -115,12 +123,7 @@ def test_a_session_in_chromium_survives_sigkill_and_resumes(tmp_path, capsys):
 
 
 def test_the_mesopic_session_starts_with_darkness(tmp_path):
-    display = tmp_path / "display.json"
-    display.write_text(json.dumps(SMALL))
-    out = tmp_path / "p08"
-    argv = ["experiment", "mesopic", "--participant", "p08", "--out", str(out), "--display"]
-    argv += [str(display), "--training", "2", "--repetitions", "0", "--dark-seconds", "2"]
-    argv += ["--no-browser", "--port", "0"]
+    argv, out = _command(tmp_path, "mesopic", "p08", "--dark-seconds", "2", "--port", "0")
     server, url, said = _start(argv)
     driver = chromium(tmp_path / "chromium")
     try:
@@ -148,12 +151,7 @@ def test_the_mesopic_session_starts_with_darkness(tmp_path):
 def test_ctrl_c_stops_the_session_with_130_and_the_page_carries_on(tmp_path):
     # Ctrl-C: status 130, the answers kept; the page left open waits for
     # the server and, once the same command serves again, carries on.
-    display = tmp_path / "display.json"
-    display.write_text(json.dumps(SMALL))
-    out = tmp_path / "p09"
-    argv = ["experiment", "afterimage", "--participant", "p09", "--out", str(out), "--display"]
-    argv += [str(display), "--training", "2", "--repetitions", "0", "--no-browser"]
-    argv += ["--port", str(_free_port())]
+    argv, out = _command(tmp_path, "afterimage", "p09", "--port", str(_free_port()))
     server, url, said = _start(argv)
     driver = chromium(tmp_path / "chromium")
     try:
@@ -173,3 +171,41 @@ def test_ctrl_c_stops_the_session_with_130_and_the_page_carries_on(tmp_path):
         if server.poll() is None:
             server.kill()
     assert sorted(r["trial"] for r in _rows(out)) == ["0", "1"]
+
+
+#: Holds the page's main thread for 100 ms (6 frames at 60 Hz) when the
+#: first trial's second image comes up: its frames come late.
+STALL = """
+let stalled = false;
+new MutationObserver(() => {
+  if (!stalled && document.body.dataset.phase === "interval2") {
+    stalled = true;
+    const end = performance.now() + 100;
+    while (performance.now() < end) {}
+  }
+}).observe(document.body, {attributes: true});
+"""
+
+
+def test_a_trial_with_a_dropped_frame_is_flagged_and_shown_again(tmp_path):
+    argv, out = _command(tmp_path, "afterimage", "p10", "--seed", "5", "--port", "0")
+    server, url, said = _start(argv)
+    driver = chromium(tmp_path / "chromium")
+    try:
+        driver.get(url)
+        driver.execute_script(STALL)
+        p = ScriptedParticipant(driver)
+        p.watch()
+        assert p.until(lambda phase: phase == "done") == "done"
+        assert server.wait(30) == 0
+    finally:
+        driver.quit()
+        if server.poll() is None:
+            server.kill()
+    rows = _rows(out)
+    assert [(r["trial"], r["flagged"]) for r in rows] == [
+        ("0", "true"),
+        ("1", "false"),
+        ("0", "false"),
+    ]
+    assert int(rows[0]["dropped_frames"]) >= 1 and float(rows[0]["image2_ms"]) > 100

@@ -122,9 +122,11 @@ async function instructions() {
   phase("instructions");
   say(`${setup.instructions}\n\n${setup.keys}`);
   const period = await framePeriod(30);
-  warn(period);
-  addEventListener("resize", () => warn(period));
+  const check = () => warn(period);
+  check();
+  addEventListener("resize", check);
   await key({ " ": true });
+  removeEventListener("resize", check);
   // Full screen where the browser allows it (a key press may ask for it).
   if (document.documentElement.requestFullscreen) {
     document.documentElement.requestFullscreen().catch(() => {});
@@ -136,7 +138,6 @@ async function instructions() {
 // planned: another frame rate than the display file's, a window smaller
 // than the images.
 function warn(period) {
-  if (body.dataset.phase !== "instructions") return;
   const problems = [];
   const measured = 1000 / period;
   if (Math.abs(measured - setup.refresh_hz) > 0.03 * setup.refresh_hz) {
