@@ -22,6 +22,16 @@ from jaxadapt.experiment.scripted import ScriptedParticipant
 SMALL = {"distance_m": 0.5, "pixel_pitch_mm": 1.0}
 
 
+#: The brightest code on the page's canvas.
+BRIGHTEST = """
+const c = document.getElementById("screen");
+const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+let m = 0;
+for (let i = 0; i < d.length; i += 4) m = Math.max(m, d[i], d[i + 1], d[i + 2]);
+return m;
+"""
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -78,6 +88,9 @@ def test_a_session_in_chromium_survives_sigkill_and_resumes(tmp_path, capsys):
         driver.get(url)
         p = ScriptedParticipant(driver)
         p.watch()
+        # The cross on the first trial (the page grew to full screen).
+        p.until(lambda phase: phase == "fixation")
+        assert driver.execute_script(BRIGHTEST) > 0
         # The first trial, answered; the second up to its first blank.
         p.until(lambda phase: len(_rows(out)) == 1 and phase == "fixation")
         p.until(lambda phase: phase == "blank1")

@@ -127,9 +127,11 @@ async function instructions() {
   addEventListener("resize", check);
   await key({ " ": true });
   removeEventListener("resize", check);
-  // Full screen where the browser allows it (a key press may ask for it).
+  // Full screen where the browser allows it (a key press may ask for it);
+  // the trials begin once the window has its new size.
   if (document.documentElement.requestFullscreen) {
-    document.documentElement.requestFullscreen().catch(() => {});
+    await document.documentElement.requestFullscreen().catch(() => {});
+    await frame();
   }
   say("");
 }
@@ -178,14 +180,17 @@ async function pause(words) {
 // One trial: the fixation target while its images load, then both
 // intervals as one run of display frames, then the answer.
 async function trial(state) {
-  clear();
-  drawFixation();
+  // The cross, drawn every frame (a resize clears the canvas), for
+  // FIXATION_MS and until the trial's images are loaded.
   phase("fixation");
   const intervals = state.intervals;
-  const [bitmaps] = await Promise.all([
-    images(intervals.flatMap((i) => i.images)),
-    sleep(FIXATION_MS),
-  ]);
+  let bitmaps = null;
+  images(intervals.flatMap((i) => i.images)).then((loaded) => (bitmaps = loaded));
+  const start = await frame();
+  for (let now = start; bitmaps === null || now - start < FIXATION_MS; now = await frame()) {
+    clear();
+    drawFixation();
+  }
   // Frame by frame: what to draw, and where each phase starts.
   const draws = [];
   const starts = [];
@@ -195,7 +200,7 @@ async function trial(state) {
       if (i === 0) starts.push([draws.length, "interval" + (n + 1), interval]);
       if (i === interval.shown) starts.push([draws.length, "blank" + (n + 1), null]);
       for (let h = 0; h < interval.holds[i]; h++) {
-        draws.push({ image: h === 0 ? bitmaps.get(k) : null, shown: i < interval.shown });
+        draws.push({ image: bitmaps.get(k), shown: i < interval.shown });
       }
       if (i < interval.shown) shown += interval.holds[i];
     });
@@ -209,10 +214,8 @@ async function trial(state) {
       phase("respond");
       break;
     }
-    if (draws[f].image) {
-      clear();
-      drawImage(draws[f].image);
-    }
+    clear(); // (every frame: a resize would have cleared the canvas)
+    drawImage(draws[f].image);
     while (next < starts.length && starts[next][0] === f) {
       const [, name, interval] = starts[next++];
       if (interval) phase(name, interval.stimulus, interval.luminance);
