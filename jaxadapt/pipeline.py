@@ -24,7 +24,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxadapt import runtime
+from jaxadapt import io, runtime
 from jaxadapt._checks import check_value, check_whole
 from jaxadapt.io import frame_rate, hdr_size, read_hdr
 
@@ -227,6 +227,77 @@ def from_files(paths, fps=None, multiplier=1.0):
         None,
         FILE_PIXELS_PER_DEGREE,
         (H, W),
+    )
+
+
+def from_video(path, transfer=None, primaries=None, hlg_peak=None, multiplier=1.0):
+    """A :class:`Source` over a video file's frames (:func:`jaxadapt.io.read_video`).
+
+    Parameters
+    ----------
+    path : str or Path
+        HDR10 (PQ), HLG or SDR video that FFmpeg reads (H.264, HEVC, AV1,
+        ProRes ... in MP4, MKV, MOV).
+    transfer, primaries : str, optional
+        Overrides of the stream's tags (:func:`jaxadapt.io.probe_video`).
+    hlg_peak : float, optional
+        HLG's display peak, cd/m2 (default :data:`jaxadapt.io.HLG_PEAK`).
+    multiplier : float
+        Factor on the decoded cd/m2 (SDR video is decoded at a reference
+        white of :data:`jaxadapt.io.SDR_WHITE`).
+
+    The frames' times and durations are their presentation stamps' (a
+    video of variable frame rate keeps its timing); the frames are decoded
+    in order as the chunks ask for them.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As :func:`jaxadapt.io.probe_video`, up front; when a chunk is read,
+        a frame FFmpeg cannot decode, or a file that ends before the frames
+        its packets announced.
+    """
+    info = io.probe_video(path, transfer, primaries)
+    peak = io.HLG_PEAK if hlg_peak is None else hlg_peak
+    check_value("hlg_peak", peak, lambda v: np.isfinite(v) & (v > 0), "a positive luminance")
+    _check_multiplier(multiplier)
+    times, dt = io.video_times(path)
+    decoder = {"at": 0, "frames": None}
+
+    def decoded():
+        for _, chunk in io.read_video(info, hlg_peak=peak):
+            yield from chunk
+
+    def frames(idx):
+        idx = np.asarray(idx)
+        if decoder["frames"] is None or idx[0] != decoder["at"]:  # (first, or not in order)
+            decoder["frames"], decoder["at"] = decoded(), 0
+            for _ in range(int(idx[0])):
+                next(decoder["frames"], None)
+            decoder["at"] = int(idx[0])
+        out = []
+        for i in idx:
+            frame = next(decoder["frames"], None)
+            if frame is None:
+                raise ValueError(
+                    f"{path}: frame {i} of {len(times)} could not be decoded (the file ends "
+                    "before the frames its packets announce: truncated?)"
+                )
+            out.append(frame)
+        decoder["at"] = int(idx[-1]) + 1
+        return _calibrated(np.stack(out), multiplier, path)
+
+    centre = np.array([(info.width - 1) / 2.0, (info.height - 1) / 2.0])
+    return Source(
+        Path(path).name,
+        times,
+        dt,
+        frames,
+        lambda idx: np.tile(centre, (len(idx), 1)),
+        "log_average",
+        None,
+        FILE_PIXELS_PER_DEGREE,
+        (info.height, info.width),
     )
 
 

@@ -32,7 +32,8 @@ def _input_options():
                 nargs="*",
                 metavar="FILE",
                 help="HDR input (EXR, Radiance HDR, PFM, float TIFF): one image, or the frames "
-                "of a sequence in order (e.g. a shell glob of a numbered sequence)",
+                "of a sequence in order (e.g. a shell glob of a numbered sequence); or one "
+                "video (HDR10, HLG or SDR; MP4, MKV, MOV, ...), its frames timed by their stamps",
             ),
         ),
         (
@@ -92,7 +93,35 @@ def _input_options():
             dict(
                 type=_positive,
                 default=1.0,
-                help="multiply input values by this to calibrate them to cd/m2 (default: 1)",
+                help="multiply input values by this to calibrate them to cd/m2 (default: 1; "
+                "SDR video is read at a white of 100 cd/m2 before it)",
+            ),
+        ),
+        (
+            ("--video-transfer",),
+            dict(
+                choices=("pq", "hlg", "bt709"),
+                default=None,
+                help="a video's transfer, where its tags are missing or wrong (default: its tags)",
+            ),
+        ),
+        (
+            ("--video-primaries",),
+            dict(
+                choices=("bt709", "bt2020"),
+                default=None,
+                help="a video's primaries, where its tags are missing or wrong (default: its "
+                "tags; untagged: bt2020 for PQ and HLG, bt709 for SDR)",
+            ),
+        ),
+        (
+            ("--hlg-peak",),
+            dict(
+                type=_positive,
+                default=None,
+                metavar="CD",
+                help="the display peak an HLG video is shown at, cd/m2 (default: 1000, "
+                "ITU-R BT.2100's reference)",
             ),
         ),
     )

@@ -70,9 +70,22 @@ def _files_rate(files):
 def _source(args):
     """The :class:`~jaxadapt.pipeline.Source` of FILEs (their headers read,
     no pixel) or of the built-in scene the options describe."""
-    from jaxadapt import pipeline
+    from jaxadapt import io, pipeline
     from jaxadapt.scenes import SCENES
 
+    video = [f for f in args.files if io.is_video(f)]
+    options = {"--video-transfer": args.video_transfer, "--video-primaries": args.video_primaries}
+    given = [o for o, v in (*options.items(), ("--hlg-peak", args.hlg_peak)) if v is not None]
+    if given and not video:
+        raise UsageError(f"{given[0]}: applies to a video FILE")
+    if video:
+        if len(args.files) > 1:
+            raise UsageError(f"FILE: expected one video, or HDR images, got {video[0]} and more")
+        if args.fps is not None:
+            raise UsageError("--fps: a video's frames are timed by their own stamps")
+        return pipeline.from_video(
+            video[0], args.video_transfer, args.video_primaries, args.hlg_peak, args.multiplier
+        )
     if args.files:
         return pipeline.from_files(args.files, args.fps or _files_rate(args.files), args.multiplier)
     kwargs = {}

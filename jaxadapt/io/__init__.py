@@ -1,4 +1,5 @@
-"""Reading HDR frames and writing display frames, with OpenImageIO.
+"""Reading HDR frames and writing display frames, with OpenImageIO; reading
+HDR and SDR video with FFmpeg's libraries (PyAV).
 
 Every writer writes to a temporary file beside its target and renames it
 into place, so an interrupted or failed run never leaves a half-written
@@ -15,6 +16,15 @@ from jaxadapt.io._headers import (
 )
 from jaxadapt.io._read import frame_rate, hdr_size, read_hdr, to_bt709_gamut
 from jaxadapt.io._video import VIDEO_TRANSFERS, video_writer
+from jaxadapt.io._video_read import (
+    HLG_PEAK,
+    SDR_WHITE,
+    VideoInfo,
+    is_video,
+    probe_video,
+    read_video,
+    video_times,
+)
 from jaxadapt.io._write import (
     COLOUR_SPACES,
     COMPRESSION,
@@ -34,20 +44,27 @@ __all__ = [
     "DEFLATE_LEVEL",
     "EIGHT_BIT_FORMATS",
     "FLOAT_FORMATS",
+    "HLG_PEAK",
     "PNG_PAETH",
+    "SDR_WHITE",
     "VIDEO_TRANSFERS",
+    "VideoInfo",
     "atomic_path",
     "bt709_matrix",
     "csv_writer",
     "display_window",
     "frame_rate",
     "hdr_size",
+    "is_video",
+    "probe_video",
     "radiance_exposure",
     "radiance_primaries",
     "read_hdr",
+    "read_video",
     "reorient",
     "rgb_channels",
     "to_bt709_gamut",
+    "video_times",
     "video_writer",
     "write_columns",
     "write_image",
