@@ -13,6 +13,7 @@ import pytest
 from cli_runs import assert_one_line_error, run
 
 from jaxadapt import io, pipeline
+from jaxadapt.cli import main
 from jaxadapt.io._video_read import eotf_hlg, eotf_pq
 
 FFMPEG = imageio_ffmpeg.get_ffmpeg_exe()
@@ -142,6 +143,12 @@ def test_variable_frame_rate_keeps_each_frame_s_time(tmp_path):
     np.testing.assert_allclose(decoded, seconds)
     frames = source.frames(np.arange(5))  # the frames in order: brighter each time
     assert np.all(np.diff(frames.mean(axis=(1, 2, 3))) > 0)
+    # The render's video keeps the stamps.
+    out = tmp_path / "out"
+    assert main(["render", str(path), "--video-transfer", "bt709", "--out", str(out)]) == 0
+    with av.open(str(out / "video.mp4")) as rendered:
+        shown = [float(f.time) for f in rendered.decode(video=0)]
+    np.testing.assert_allclose(shown, seconds, atol=1e-4)
 
 
 def test_render_a_video_and_what_is_refused(tmp_path, capsys):
@@ -150,6 +157,16 @@ def test_render_a_video_and_what_is_refused(tmp_path, capsys):
     status, err = run(capsys, "render", str(clip), "--out", str(tmp_path / "out"))
     assert status == 0, err
     assert len(list((tmp_path / "out").glob("frame_*.png"))) == 6
+    # The video: H.264 tagged BT.709 (sRGB's transfer), the audio copied as it was.
+    import av
+
+    with av.open(str(clip)) as source, av.open(str(tmp_path / "out" / "video.mp4")) as video:
+        assert [s.type for s in video.streams] == ["video", "audio"]
+        cc = video.streams.video[0].codec_context
+        assert (cc.name, cc.color_primaries, cc.color_trc, cc.colorspace) == ("h264", 1, 13, 1)
+        copied = [bytes(p) for p in video.demux(video.streams.audio[0]) if p.size]
+        original = [bytes(p) for p in source.demux(source.streams.audio[0]) if p.size]
+        assert copied == original
     bad = tmp_path / "text.mp4"
     bad.write_text("not a video")
     untagged = _clip(tmp_path / "untagged.mp4", "pq", tag=False)

@@ -14,17 +14,26 @@ def _message(error):
     return error_message(error)
 
 
-def _video_and_progress(stack, staging, formats, fps, encoding, console, task):
+def _video_and_progress(stack, staging, formats, fps, encoding, console, task, video=None):
     """Enter, on the exit stack ``stack``, the video writer of a render's
     ``video.mp4`` (where ``formats`` holds mp4) and a progress bar on
     ``console`` (only on a terminal) for ``task`` ``(description, total)``;
-    return ``send_video(frames)`` (a no-op without mp4) and ``advance(n)``."""
+    return ``send_video(frames)`` (a no-op without mp4) and ``advance(n)``.
+    ``video``: ``(times, path)`` of a video input, whose frame times the
+    video keeps and whose audio and subtitles it copies."""
     from rich.progress import Progress
 
     from jaxadapt import io
 
     send_video = (
-        stack.enter_context(io.video_writer(staging / "video.mp4", fps, encoding))
+        stack.enter_context(
+            io.video_writer(
+                staging / "video.mp4",
+                fps,
+                encoding,
+                *(video or (None, None)),
+            )
+        )
         if "mp4" in formats
         else (lambda frames: None)
     )

@@ -67,13 +67,20 @@ def _files_rate(files):
     return rate
 
 
+def _is_video(files):
+    """Whether the FILEs are a video."""
+    from jaxadapt import io
+
+    return any(io.is_video(f) for f in files)
+
+
 def _source(args):
     """The :class:`~jaxadapt.pipeline.Source` of FILEs (their headers read,
     no pixel) or of the built-in scene the options describe."""
     from jaxadapt import io, pipeline
     from jaxadapt.scenes import SCENES
 
-    video = [f for f in args.files if io.is_video(f)]
+    video = [f for f in args.files if io.is_video(f)]  # (more than one is refused below)
     options = {"--video-transfer": args.video_transfer, "--video-primaries": args.video_primaries}
     given = [o for o, v in (*options.items(), ("--hlg-peak", args.hlg_peak)) if v is not None]
     if given and not video:
@@ -263,6 +270,7 @@ def render(args, console):
                 plan.encoding,
                 console,
                 (f"rendering {source.name}", T),
+                video=(source.times, args.files[0]) if _is_video(args.files) else None,
             )
             write = FrameOutputs(
                 staging,

@@ -1,9 +1,7 @@
-"""Streaming uint8 frames into an H.264 MP4 through ffmpeg."""
+"""Streaming uint8 frames into an H.264 MP4 through FFmpeg's libraries
+(PyAV), with the timing and the audio and subtitles of a source video."""
 
 import contextlib
-import re
-import tempfile
-import warnings
 from fractions import Fraction
 from pathlib import Path
 
@@ -14,96 +12,158 @@ from jaxadapt.io._write import atomic_path
 #: ffmpeg's name of each encoding's transfer function, for a video's tag
 #: (BT.470 M is a pure gamma of 2.2).
 VIDEO_TRANSFERS = {"srgb": "iec61966-2-1", "gamma": "bt470m"}
+#: FFmpeg's codes of those transfers (AVColorTransferCharacteristic), and
+#: of BT.709's primaries and matrix and of the limited ("tv") range.
+_TRC_CODES = {"srgb": 13, "gamma": 4}
+_BT709, _TV_RANGE = 1, 1
+#: Time base of a video written with given frame times: MPEG's 90 kHz.
+TIME_BASE = Fraction(1, 90000)
 
 
 @contextlib.contextmanager
-def video_writer(path, fps, encoding="srgb"):
-    """Stream uint8 frames into an H.264 MP4 (the ffmpeg of imageio-ffmpeg).
+def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
+    """Stream uint8 frames into an H.264 MP4 (libx264 through PyAV).
 
     Yields ``send(frames)`` taking ``(K, H, W, 3)`` uint8 chunks of BT.709
     RGB encoded with ``encoding`` (``"srgb"`` or ``"gamma"``, 2.2); frames
     of odd size are padded by one edge pixel (4:2:0 video needs even
-    sizes). The file appears under ``path`` only when the block completes
-    and ffmpeg has exited with success.
+    sizes). The file appears under ``path`` only when the block completes.
 
-    The RGB is converted to YCbCr with the BT.709 matrix, and the stream is
-    tagged with BT.709 primaries and matrix and the encoding's transfer
-    function, so that a player decodes the colours that were sent. (By
-    default ffmpeg converts with BT.601's matrix and tags nothing, and
-    players that assume BT.709 for HD video then shift the colours.)
+    The RGB is converted to Y'CbCr with the BT.709 matrix into the limited
+    range, and the stream is tagged with BT.709 primaries and matrix and
+    the encoding's transfer function, so that a player decodes the colours
+    that were sent. (By default FFmpeg converts with BT.601's matrix and
+    tags nothing, and players that assume BT.709 for HD video then shift
+    the colours.) Quality: constant rate factor 25.
 
-    ffmpeg is run here, not through ``imageio_ffmpeg.write_frames``, whose
-    end does not check ffmpeg's exit status: a size that H.264 cannot
-    encode (wider than 16,384 pixels) or a frame rate that ffmpeg cannot
-    parse would leave an empty video reported as written.
-    ffmpeg's messages go to a temporary file (not a pipe: one that filled
-    would stall it) and the first of them, the cause, is raised.
+    Parameters
+    ----------
+    path : str or Path
+    fps : float
+        Frame rate, frames/s, where ``times`` is not given.
+    encoding : str
+    times : array, optional
+        Each frame's presentation time, s (a video read with variable frame
+        rate keeps its timing); by default ``i / fps``.
+    copy_from : str or Path, optional
+        A video whose audio and subtitle streams are copied as they are,
+        interleaved with the frames by time.
 
     Raises
     ------
     OSError
-        ffmpeg failed: the message names ``path`` and says what ffmpeg said.
+        FFmpeg could not write the video (a size H.264 cannot encode, a
+        stream the MP4 container cannot hold): the message names ``path``
+        and says what FFmpeg said.
     """
-    import subprocess
+    import av
+    import av.logging
 
-    import imageio_ffmpeg
+    rate = Fraction(fps).limit_denominator()
+    base = TIME_BASE if times is not None else 1 / rate
 
-    with atomic_path(path) as tmp, tempfile.TemporaryFile() as log:
-        process = None
+    def failed(error, said):
+        causes = [m for level, _, m in said if level <= av.logging.ERROR] or [str(error)]
+        return OSError(f"{Path(path).name}: FFmpeg could not write the video: {causes[0].strip()}")
 
-        def fail():
-            with contextlib.suppress(BrokenPipeError):  # its buffer, flushed to no reader
-                process.stdin.close()
-            process.wait()
-            log.seek(0)
-            said = log.read().decode(errors="replace").strip().splitlines()
-            # The first message is the cause, the rest its consequences;
-            # without ffmpeg's "[libx264 @ 0x...]" prefixes.
-            cause = re.sub(r"^(\[[^\]]*\]\s*)+", "", said[0]) if said else "no message"
-            raise OSError(
-                f"{Path(path).name}: ffmpeg could not write the video (exit status "
-                f"{process.returncode}): {cause}"
-            )
-
-        def send(frames):
-            nonlocal process
-            frames = np.asarray(frames)
-            H, W = frames.shape[1:3]
-            frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
-            if process is None:
-                # As imageio-ffmpeg calls it (quality 5: crf 25), the rate a
-                # fraction so that 24000/1001 is not rounded.
-                rate = Fraction(fps).limit_denominator()
-                command = [
-                    imageio_ffmpeg.get_ffmpeg_exe(),
-                    "-y", "-v", "error",
-                    "-f", "rawvideo", "-pix_fmt", "rgb24",
-                    "-s", f"{W + W % 2}x{H + H % 2}", "-r", str(rate), "-i", "-",
-                    "-an", "-vcodec", "libx264",
-                    "-vf", "scale=out_color_matrix=bt709:out_range=tv,setparams="
-                    f"colorspace=bt709:color_primaries=bt709:color_trc={VIDEO_TRANSFERS[encoding]}",
-                    "-pix_fmt", "yuv420p", "-crf", "25", "-f", "mp4", tmp,
-                ]  # fmt: skip
-                with warnings.catch_warnings():
-                    # ffmpeg is started with fork+exec, which is safe under JAX's threads
-                    warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
-                    process = subprocess.Popen(
-                        command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log
-                    )
-            try:
-                process.stdin.write(np.ascontiguousarray(frames).tobytes())
-            except BrokenPipeError:
-                fail()
-
+    with atomic_path(path) as tmp, _ffmpeg_errors() as said:
         try:
+            out = av.open(tmp, "w", format="mp4")
+        except av.error.FFmpegError as error:
+            raise failed(error, said) from None
+        stream, copies, n = None, None, 0
+        try:
+
+            def send(frames):
+                nonlocal stream, copies, n
+                frames = np.asarray(frames)
+                H, W = frames.shape[1:3]
+                frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
+                try:
+                    if stream is None:  # (the video first, the copied streams after it)
+                        stream = _video_stream(out, frames.shape, rate, base, encoding)
+                        copies = _Copies(out, copy_from)
+                    for frame in frames:
+                        t = times[n] if times is not None else n / rate
+                        picture = av.VideoFrame.from_ndarray(frame, "rgb24").reformat(
+                            format="yuv420p",
+                            dst_colorspace=av.video.reformatter.Colorspace.ITU709,
+                            dst_color_range=av.video.reformatter.ColorRange.MPEG,
+                        )
+                        picture.pts, picture.time_base = round(t / base), base
+                        out.mux(stream.encode(picture))
+                        copies.until(t)
+                        n += 1
+                except av.error.FFmpegError as error:
+                    raise failed(error, said) from None
+
             yield send
-        except BaseException:
-            if process is not None:
-                process.kill()
-                process.wait()
-            raise
-        if process is not None:
-            with contextlib.suppress(BrokenPipeError):
-                process.stdin.close()
-            if process.wait() != 0:
-                fail()
+            try:
+                if stream is not None:
+                    out.mux(stream.encode())
+                    copies.until(None)
+            except av.error.FFmpegError as error:
+                raise failed(error, said) from None
+        finally:
+            if copies is not None:
+                copies.close()
+            out.close()
+
+
+@contextlib.contextmanager
+def _ffmpeg_errors():
+    """FFmpeg's error messages while the block runs, as ``(level, name,
+    message)`` (PyAV passes none on unless a level is set)."""
+    import av.logging
+
+    previous = av.logging.get_level()
+    av.logging.set_level(av.logging.ERROR)
+    try:
+        with av.logging.Capture(local=False) as said:  # (the frames come from a thread)
+            yield said
+    finally:
+        av.logging.set_level(previous)
+
+
+def _video_stream(out, shape, rate, base, encoding):
+    stream = out.add_stream("libx264", rate=rate)
+    stream.height, stream.width = shape[1:3]
+    stream.pix_fmt = "yuv420p"
+    cc = stream.codec_context
+    cc.time_base = base
+    cc.options = {"crf": "25"}
+    cc.color_primaries, cc.colorspace, cc.color_range = _BT709, _BT709, _TV_RANGE
+    cc.color_trc = _TRC_CODES[encoding]
+    return stream
+
+
+class _Copies:
+    """The audio and subtitle streams of ``source`` added to ``out``, their
+    packets muxed as the video's frames reach their times."""
+
+    def __init__(self, out, source):
+        self.out, self.packets, self.container, self.next = out, None, None, None
+        if source is None:
+            return
+        import av
+
+        self.container = av.open(str(source))
+        inputs = [*self.container.streams.audio, *self.container.streams.subtitles]
+        if not inputs:
+            return
+        self.streams = {s.index: out.add_stream_from_template(s) for s in inputs}
+        self.packets = (p for p in self.container.demux(inputs) if p.dts is not None)
+        self.next = next(self.packets, None)
+
+    def until(self, t):
+        """Mux the packets before ``t`` s (all, for None)."""
+        while self.next is not None and (
+            t is None or float(self.next.dts * self.next.time_base) <= t
+        ):
+            packet, self.next = self.next, next(self.packets, None)
+            packet.stream = self.streams[packet.stream.index]
+            self.out.mux(packet)
+
+    def close(self):
+        if self.container is not None:
+            self.container.close()
