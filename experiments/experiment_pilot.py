@@ -17,6 +17,7 @@ measured durations (median, min, max) and what the fit said.
 ``--smoke`` runs 2 training trials on a display of 8.7 pixels a degree.
 """
 
+import base64
 import csv
 import json
 import re
@@ -30,6 +31,15 @@ from common import setup
 
 from jaxadapt.experiment.scripted import ScriptedParticipant
 
+#: The standard's flash, as the page fetches it (a data URL's base64).
+FLASH = """
+const done = arguments[arguments.length - 1];
+fetch("/image/f-s-0" + location.search).then((r) => r.arrayBuffer()).then((buffer) => {
+  let s = "";
+  for (const x of new Uint8Array(buffer)) s += String.fromCharCode(x);
+  done(btoa(s));
+});
+"""
 PHASES = ("instructions", "dark", "fixation", "interval1", "blank1", "respond", "break", "done")
 
 
@@ -101,6 +111,9 @@ def pilot(study, folder, smoke):
         if phase in PHASES and phase not in shot:
             shot.add(phase)
             _screenshot(driver, folder / f"{study}_{phase}.png")
+            if phase == "interval1" and study == "afterimage":  # (50 ms: too short to catch)
+                flash = driver.execute_async_script(FLASH)
+                (folder / "afterimage_flash.png").write_bytes(base64.b64decode(flash))
 
     try:
         driver.get(url)

@@ -56,10 +56,13 @@ class ScriptedParticipant:
 
         ActionChains(self.driver).send_keys(key).perform()
 
-    def step(self):
-        """Act on the page's phase once; return the phase."""
+    def step(self, before=None):
+        """Act on the page's phase once; return the phase. ``before(phase)``,
+        if given, is called first (e.g. to take a screenshot of it)."""
         self._collect()
         phase = self.driver.execute_script("return document.body.dataset.phase")
+        if before is not None:
+            before(phase)
         if phase in ("instructions", "break"):
             time.sleep(0.2)
             self._press(" ")
@@ -75,13 +78,11 @@ class ScriptedParticipant:
 
     def until(self, condition, timeout=60.0, each=None):
         """Act until ``condition(phase)`` holds; return that phase.
-        ``each(phase)``, if given, is called at every step."""
+        ``each(phase)``, if given, is called at every step, before acting."""
         end = time.monotonic() + timeout
         phase = None
         while time.monotonic() < end:
-            phase = self.step()
-            if each is not None:
-                each(phase)
+            phase = self.step(each)
             if condition(phase):
                 return phase
             time.sleep(0.03)
