@@ -40,10 +40,10 @@ def _signal(i):
     return np.broadcast_to(PATCHES[i % len(PATCHES)] * ramp, (H, W, 3)).astype(np.float32)
 
 
-def _clip(path, transfer, frames=6, audio=False, tag=True):
+def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False):
     """An HEVC (10-bit) or H.264 (SDR, 8-bit) clip of :func:`_signal` frames
     at 24 frames/s, converted by zscale (zimg) and losslessly encoded; with
-    a sine's audio track; without colour tags."""
+    a sine's audio track; without colour tags; the index (moov) first."""
     raw = b"".join(
         np.ascontiguousarray(_signal(i)[..., [1, 2, 0]].transpose(2, 0, 1)).tobytes()
         for i in range(frames)
@@ -70,6 +70,8 @@ def _clip(path, transfer, frames=6, audio=False, tag=True):
         args += ["-color_range", "tv"]
     if audio:
         args += ["-c:a", "aac", "-shortest"]
+    if faststart:
+        args += ["-movflags", "+faststart"]
     subprocess.run([*args, str(path)], input=raw, check=True)
     return path
 
@@ -186,3 +188,25 @@ def test_render_a_video_and_what_is_refused(tmp_path, capsys):
         capsys, "render", str(untagged), "--video-transfer", "pq", "--out", str(tmp_path / "o2")
     )
     assert status == 0, err
+
+
+def test_a_truncated_video_and_rgb_video_are_refused(tmp_path, capsys):
+    # A download cut short: with its index first, the frames it announces
+    # end early (the render stops at the first missing one, nothing
+    # written); with its index last, no index: not readable as a video.
+    out = tmp_path / "out"
+    for faststart, says in ((True, "could not be decoded"), (False, "FFmpeg cannot read")):
+        data = _clip(tmp_path / "whole.mp4", "pq", frames=24, faststart=faststart).read_bytes()
+        cut = tmp_path / "cut.mp4"
+        cut.write_bytes(data[: len(data) * 3 // 4])
+        status, err = run(capsys, "render", str(cut), "--out", str(out))
+        assert status == 2 and says in err.splitlines()[-1], err
+        assert not out.exists()
+    rgb = tmp_path / "rgb.mp4"
+    subprocess.run(
+        [FFMPEG, "-v", "error", "-f", "lavfi", "-i", "testsrc2=s=64x48:d=0.2", "-c:v",
+         "libx264rgb", "-color_trc", "bt709", str(rgb)],
+        check=True,
+    )  # fmt: skip
+    status, err = run(capsys, "render", str(rgb), "--out", str(out))
+    assert_one_line_error(status, err, "expected Y'CbCr video of 8 to 12 bits", "gbrp")

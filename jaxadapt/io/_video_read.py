@@ -18,6 +18,7 @@ Each frame's time comes from its presentation time stamp, so a video of
 variable frame rate (a phone's) gives each frame its own duration.
 """
 
+import contextlib
 import dataclasses
 import math
 from pathlib import Path
@@ -147,6 +148,20 @@ def _named(table, code, what, path, given):
     raise ValueError(f"{path}: expected a {what} of {', '.join(table)}, got FFmpeg's code {code}")
 
 
+def _colour_tags(container, stream):
+    """The colour tags of the stream's first frame (an H.264 stream's are in
+    its parameter sets, which FFmpeg reads as it decodes: the codec's
+    context says "unspecified" until then); the context's where no frame
+    decodes."""
+    import av
+
+    names = ("color_trc", "color_primaries", "colorspace", "color_range")
+    source = stream.codec_context
+    with contextlib.suppress(StopIteration, av.error.FFmpegError):  # (no frame: the context's)
+        source = next(container.decode(stream))
+    return {name: int(getattr(source, name)) for name in names}
+
+
 def probe_video(path, transfer=None, primaries=None):
     """The :class:`VideoInfo` of ``path``'s first video stream.
 
@@ -175,12 +190,7 @@ def probe_video(path, transfer=None, primaries=None):
                 f"{path}: expected Y'CbCr video of 8 to 12 bits (yuv420p, yuv420p10le, ...), "
                 f"got pixel format {fmt}"
             )
-        tags = {
-            "color_trc": int(cc.color_trc),
-            "color_primaries": int(cc.color_primaries),
-            "colorspace": int(cc.colorspace),
-            "color_range": int(cc.color_range),
-        }
+        tags = _colour_tags(container, stream)
         transfer = _named(TRANSFERS, tags["color_trc"], "transfer", path, transfer)
         hd = transfer in ("pq", "hlg")
         default_primaries = PRIMARIES["bt2020" if hd else "bt709"][0]
