@@ -39,6 +39,7 @@ __all__ = [
     "from_scene",
     "files_rate",
     "from_files",
+    "from_video",
     "chunks",
     "ahead",
     "behind",

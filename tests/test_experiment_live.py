@@ -161,31 +161,6 @@ def test_the_mesopic_session_starts_with_darkness(tmp_path):
         assert 730 < float(r["blank1_ms"]) < 770, r
 
 
-def test_ctrl_c_stops_the_session_with_130_and_the_page_carries_on(tmp_path):
-    # Ctrl-C: status 130, the answers kept; the page left open waits for
-    # the server and, once the same command serves again, carries on.
-    argv, out = _command(tmp_path, "afterimage", "p09", "--port", str(_free_port()))
-    server, url, said = _start(argv)
-    driver = chromium(tmp_path / "chromium")
-    try:
-        driver.get(url)
-        p = ScriptedParticipant(driver)
-        p.watch()
-        p.until(lambda phase: len(_rows(out)) == 1 and phase == "fixation")
-        server.send_signal(signal.SIGINT)
-        assert server.wait(30) == 128 + signal.SIGINT
-        _said(said, "stopped at 1 of 2 trials answered")
-        _said(said, "jaxadapt: interrupted; every answer given is kept")
-        server, url, said = _start(argv)
-        assert p.until(lambda phase: phase == "done") == "done"  # (no reload)
-        assert server.wait(30) == 0
-    finally:
-        driver.quit()
-        if server.poll() is None:
-            server.kill()
-    assert sorted(r["trial"] for r in _rows(out)) == ["0", "1"]
-
-
 #: Holds the page's main thread for 100 ms (6 frames at 60 Hz) when the
 #: first trial's second image comes up: its frames come late.
 STALL = """
@@ -200,8 +175,13 @@ new MutationObserver(() => {
 """
 
 
-def test_a_trial_with_a_dropped_frame_is_flagged_and_shown_again(tmp_path):
-    argv, out = _command(tmp_path, "afterimage", "p10", "--seed", "5", "--port", "0")
+def test_a_dropped_frame_and_ctrl_c(tmp_path):
+    # The first trial's second image is kept from being drawn for 100 ms:
+    # the trial is flagged, and shown again after the block's last. Then
+    # Ctrl-C: status 130, the answers kept; the page left open waits for
+    # the server and, once the same command serves again, carries on.
+    argv, out = _command(tmp_path, "afterimage", "p10", "--seed", "5")
+    argv += ["--port", str(_free_port())]
     server, url, said = _start(argv)
     driver = chromium(tmp_path / "chromium")
     try:
@@ -209,7 +189,13 @@ def test_a_trial_with_a_dropped_frame_is_flagged_and_shown_again(tmp_path):
         driver.execute_script(STALL)
         p = ScriptedParticipant(driver)
         p.watch()
-        assert p.until(lambda phase: phase == "done") == "done"
+        p.until(lambda phase: len(_rows(out)) == 1 and phase == "fixation")
+        server.send_signal(signal.SIGINT)
+        assert server.wait(30) == 128 + signal.SIGINT
+        _said(said, "stopped at 0 of 2 trials answered")  # (the one row: flagged)
+        _said(said, "jaxadapt: interrupted; every answer given is kept")
+        server, url, said = _start(argv)
+        assert p.until(lambda phase: phase == "done") == "done"  # (no reload)
         assert server.wait(30) == 0
     finally:
         driver.quit()

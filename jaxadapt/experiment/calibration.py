@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["TRANSFERS", "Display", "PAPER_DISPLAY", "read_display", "dithered_codes"]
+__all__ = ["TRANSFERS", "CODES", "Display", "PAPER_DISPLAY", "read_display", "dithered_codes"]
 
 #: Transfers a display file may name: the code value to relative (sRGB,
 #: gamma) or absolute (PQ) light.

@@ -16,7 +16,7 @@ import asyncio
 
 from jaxadapt.viewer._site import Site
 
-__all__ = ["ExperimentServer", "INSTRUCTIONS"]
+__all__ = ["ExperimentServer", "ASSETS", "MAX_MESSAGE", "INSTRUCTIONS", "KEYS"]
 
 #: The page and its script.
 ASSETS = {

@@ -45,6 +45,7 @@ __all__ = [
     "IMAGE_RATE",
     "FLASH_FIELD_DEG",
     "CHART_FIELD_DEG",
+    "CHART_ASPECT",
     "Interval",
     "Stimuli",
     "refreshes_per_image",
