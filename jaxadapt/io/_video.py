@@ -9,12 +9,12 @@ import numpy as np
 
 from jaxadapt.io._write import atomic_path
 
-#: ffmpeg's name of each encoding's transfer function, for a video's tag
-#: (BT.470 M is a pure gamma of 2.2).
-VIDEO_TRANSFERS = {"srgb": "iec61966-2-1", "gamma": "bt470m"}
-#: FFmpeg's codes of those transfers (AVColorTransferCharacteristic), and
-#: of BT.709's primaries and matrix and of the limited ("tv") range.
-_TRC_CODES = {"srgb": 13, "gamma": 4}
+#: FFmpeg's code (AVColorTransferCharacteristic) of each encoding's transfer
+#: function, for a video's tag: 13 iec61966-2-1 (sRGB), 4 bt470m (BT.470 M,
+#: a pure gamma of 2.2).
+VIDEO_TRANSFERS = {"srgb": 13, "gamma": 4}
+#: FFmpeg's codes of BT.709's primaries and matrix, and of the limited
+#: ("tv") range.
 _BT709, _TV_RANGE = 1, 1
 #: Time base of a video written with given frame times: MPEG's 90 kHz.
 TIME_BASE = Fraction(1, 90000)
@@ -134,7 +134,7 @@ def _video_stream(out, shape, rate, base, encoding):
     cc.options = {"crf": "25"}
     cc.thread_count = 0  # (as many as x264 chooses: 35 % faster than PyAV's default here)
     cc.color_primaries, cc.colorspace, cc.color_range = _BT709, _BT709, _TV_RANGE
-    cc.color_trc = _TRC_CODES[encoding]
+    cc.color_trc = VIDEO_TRANSFERS[encoding]
     return stream
 
 
