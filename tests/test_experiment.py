@@ -118,6 +118,11 @@ def test_afterimage_stimuli_on_the_display(afterimage):
         return np.mean(_luminance(d, afterimage.images[interval.images[0]])[centre])
 
     assert flash(standard) == pytest.approx(27.0, rel=0.02)
+    # The fixation cross 2.5 degrees below the flash's centre (the paper:
+    # "just below the position of the flash unit"), 0.5 degrees wide.
+    ppd = d.pixels_per_degree
+    assert afterimage.fixation["y"] == round(2.5 * ppd)
+    assert afterimage.fixation["size"] == max(5, round(0.5 * ppd))
     for j, test in enumerate(design.AFTERIMAGE.tests):
         assert flash(afterimage.interval(1, j)) == pytest.approx(test, rel=0.02)
     # The strong afterimage (manipulated tests) outshines the weak one.
