@@ -25,7 +25,26 @@ settings.load_profile("jaxadapt")
 CACHE_FOLDER = pytest.StashKey[str]()
 
 
+class _FreeCompiledPrograms:
+    """Free the programs a test file compiled once its last test is done.
+
+    Each compiled XLA program keeps about three memory mappings while its
+    function holds it, and a worker that kept every program of its files
+    passed Linux's limit of 65530 mappings a process (``vm.max_map_count``)
+    late in the run: XLA then crashed inside a compilation (a segmentation
+    fault, an abort). A later file that needs a freed program loads it from
+    the run's compilation cache. (A plugin, not this file's hook: it serves
+    the doctests of ``jaxadapt/`` too.)
+    """
+
+    @staticmethod
+    def pytest_runtest_teardown(item, nextitem):
+        if nextitem is None or nextitem.path != item.path:
+            jax.clear_caches()
+
+
 def pytest_configure(config):
+    config.pluginmanager.register(_FreeCompiledPrograms())
     if "PYTEST_XDIST_WORKER" in os.environ:  # a worker: the run's environment names the cache
         return
     folder = tempfile.mkdtemp(prefix="jaxadapt-tests-xla-")
