@@ -6,6 +6,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 
 from jaxadapt import _signals, runtime
 from jaxadapt._signals import interrupt_behind, interrupted_message, named_command
@@ -63,7 +64,8 @@ def _interrupted(e, argv):
 
 
 def _command(argv):
-    """Parse ``argv`` and run its command; its errors as one line and status 2."""
+    """Parse ``argv`` and run its command; its errors as one line and status 2,
+    its warnings as lines."""
     from rich.console import Console
 
     # A signal while a command's module imports JAX is raised once the import
@@ -81,8 +83,14 @@ def _command(argv):
     import jax
 
     _signals.raise_swallowed()  # an interrupt that a garbage-collector callback dropped
+
+    def show(message, *_):
+        console.print(f"warning: {message}", markup=False)
+
     try:
-        args.run(args, console)
+        with warnings.catch_warnings():  # the library's warnings as the command's own lines
+            warnings.showwarning = show
+            args.run(args, console)
     except MemoryError:
         print(f"jaxadapt: error: out of memory; try {_smaller(args)}", file=sys.stderr)
         return 2
