@@ -566,3 +566,14 @@ def test_doubles_within_float32_read_as_their_nearest_float32(tmp_path):
     read = io.read_hdr(path)
     assert read.dtype == np.float32
     np.testing.assert_array_equal(read, pixels.astype(np.float32))
+
+
+def test_a_video_frame_larger_than_h264_encodes_is_refused(tmp_path):
+    path = tmp_path / "wide.mp4"
+    says = r"wide.mp4: H.264 \(libx264\) encodes frames of up to 16384 pixels a side; got 16386x2"
+    with pytest.raises(ValueError, match=says), io.video_writer(path, 30) as send:
+        send(np.zeros((1, 2, 16386, 3), np.uint8))
+    assert list(tmp_path.iterdir()) == []
+    with io.video_writer(path, 30) as send:  # the largest side it takes
+        send(np.zeros((1, 2, 16384, 3), np.uint8))
+    assert path.exists()

@@ -210,3 +210,27 @@ def test_a_truncated_video_and_rgb_video_are_refused(tmp_path, capsys):
     )  # fmt: skip
     status, err = run(capsys, "render", str(rgb), "--out", str(out))
     assert_one_line_error(status, err, "expected Y'CbCr video of 8 to 12 bits", "gbrp")
+
+
+def test_streams_an_mp4_cannot_hold_are_left_out_with_a_warning(tmp_path, capsys):
+    # Text subtitles: MP4 holds them as mov_text, not as SubRip (an MKV's).
+    clip = _clip(tmp_path / "clip.mp4", "pq", audio=True)
+    srt = tmp_path / "subtitles.srt"
+    srt.write_text("1\n00:00:00,000 --> 00:00:00,200\nhello\n")
+    import av
+
+    for name, codec, kept in (("subs.mp4", "mov_text", True), ("subs.mkv", "srt", False)):
+        muxed = tmp_path / name
+        subprocess.run(
+            [FFMPEG, "-v", "error", "-i", str(clip), "-i", str(srt), "-map", "0", "-map", "1",
+             "-c", "copy", "-c:s", codec, str(muxed)],
+            check=True,
+        )  # fmt: skip
+        out = tmp_path / f"out_{codec}"
+        status, err = run(capsys, "render", str(muxed), "--out", str(out))
+        assert status == 0, err
+        with av.open(str(out / "video.mp4")) as video:
+            kinds = [s.type for s in video.streams]
+        assert kinds == ["video", "audio", *(["subtitle"] if kept else [])]
+        warning = f"warning: {name}: its subtitle stream 2 (srt) cannot go into an MP4; left out"
+        assert (warning in err.splitlines()) != kept, err

@@ -2,6 +2,7 @@
 (PyAV), with the timing and the audio and subtitles of a source video."""
 
 import contextlib
+import warnings
 from fractions import Fraction
 from pathlib import Path
 
@@ -18,6 +19,8 @@ VIDEO_TRANSFERS = {"srgb": 13, "gamma": 4}
 _BT709, _TV_RANGE = 1, 1
 #: Time base of a video written with given frame times: MPEG's 90 kHz.
 TIME_BASE = Fraction(1, 90000)
+#: The largest side, pixels, that libx264 encodes.
+MAX_SIDE = 16384
 
 
 @contextlib.contextmanager
@@ -47,30 +50,35 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
         rate keeps its timing); by default ``i / fps``.
     copy_from : str or Path, optional
         A video whose audio and subtitle streams are copied as they are,
-        interleaved with the frames by time.
+        interleaved with the frames by time. A stream the MP4 container
+        cannot hold (SubRip or ASS subtitles, say) is left out, with a
+        warning that names it.
 
     Raises
     ------
+    ValueError
+        A frame wider or taller than :data:`MAX_SIDE`.
     OSError
-        FFmpeg could not write the video (a size H.264 cannot encode, a
-        stream the MP4 container cannot hold): the message names ``path``
-        and says what FFmpeg said.
+        FFmpeg could not write the video (a full disk): the message names
+        ``path`` and FFmpeg's error.
+
+    FFmpeg's own log stays off (PyAV's default): passed on to Python, it is
+    called from the encoder's threads, which PyAV documents as a cause of
+    deadlocks.
     """
     import av
-    import av.logging
 
     rate = Fraction(fps).limit_denominator()
     base = TIME_BASE if times is not None else 1 / rate
 
-    def failed(error, said):
-        causes = [m for level, _, m in said if level <= av.logging.ERROR] or [str(error)]
-        return OSError(f"{Path(path).name}: FFmpeg could not write the video: {causes[0].strip()}")
+    def failed(error):
+        return OSError(f"{Path(path).name}: FFmpeg could not write the video: {error.strerror}")
 
-    with atomic_path(path) as tmp, _ffmpeg_errors() as said:
+    with atomic_path(path) as tmp:
         try:
             out = av.open(tmp, "w", format="mp4")
         except av.error.FFmpegError as error:
-            raise failed(error, said) from None
+            raise failed(error) from None
         stream, copies, n = None, None, 0
         try:
 
@@ -78,6 +86,11 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
                 nonlocal stream, copies, n
                 frames = np.asarray(frames)
                 H, W = frames.shape[1:3]
+                if max(H, W) > MAX_SIDE:
+                    raise ValueError(
+                        f"{Path(path).name}: H.264 (libx264) encodes frames of up to "
+                        f"{MAX_SIDE} pixels a side; got {W}x{H}"
+                    )
                 frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
                 try:
                     if stream is None:  # (the video first, the copied streams after it)
@@ -95,7 +108,7 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
                         copies.until(t)
                         n += 1
                 except av.error.FFmpegError as error:
-                    raise failed(error, said) from None
+                    raise failed(error) from None
 
             yield send
             try:
@@ -103,26 +116,11 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
                     out.mux(stream.encode())
                     copies.until(None)
             except av.error.FFmpegError as error:
-                raise failed(error, said) from None
+                raise failed(error) from None
         finally:
             if copies is not None:
                 copies.close()
             out.close()
-
-
-@contextlib.contextmanager
-def _ffmpeg_errors():
-    """FFmpeg's error messages while the block runs, as ``(level, name,
-    message)`` (PyAV passes none on unless a level is set)."""
-    import av.logging
-
-    previous = av.logging.get_level()
-    av.logging.set_level(av.logging.ERROR)
-    try:
-        with av.logging.Capture(local=False) as said:  # (the frames come from a thread)
-            yield said
-    finally:
-        av.logging.set_level(previous)
 
 
 def _video_stream(out, shape, rate, base, encoding):
@@ -149,7 +147,16 @@ class _Copies:
         import av
 
         self.container = av.open(str(source))
-        inputs = [*self.container.streams.audio, *self.container.streams.subtitles]
+        inputs = []
+        for s in [*self.container.streams.audio, *self.container.streams.subtitles]:
+            if s.codec_context.name in out.supported_codecs:
+                inputs.append(s)
+            else:
+                warnings.warn(
+                    f"{Path(source).name}: its {s.type} stream {s.index} "
+                    f"({s.codec_context.name}) cannot go into an MP4; left out",
+                    stacklevel=2,
+                )
         if not inputs:
             return
         self.streams = {s.index: out.add_stream_from_template(s) for s in inputs}
