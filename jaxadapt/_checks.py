@@ -56,3 +56,8 @@ def check_whole(name, value, least=0, unit=""):
         of = f" of {unit}" if unit else ""
         raise ValueError(f"{name}: expected a whole number{of} >= {least}, got {value!r}")
     return operator.index(value)
+
+
+class IncompleteInputWarning(UserWarning):
+    """An input was read only in part (a video file cut short): what could
+    be read was used, and the command line exits with status 3 to say so."""

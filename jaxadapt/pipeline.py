@@ -17,6 +17,7 @@ import contextlib
 import os
 import queue
 import threading
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -249,24 +250,34 @@ def from_video(path, transfer=None, primaries=None, hlg_peak=None, multiplier=1.
 
     The frames' times and durations are their presentation stamps' (a
     video of variable frame rate keeps its timing); the frames are decoded
-    in order as the chunks ask for them.
+    in order as the chunks ask for them. A file cut short (a download that
+    stopped) gives the frames that decode, with an
+    :class:`~jaxadapt.io.IncompleteInputWarning` that says how many.
 
     Raises
     ------
     FileNotFoundError, ValueError
         As :func:`jaxadapt.io.probe_video`, up front; when a chunk is read,
-        a frame FFmpeg cannot decode, or a file that ends before the frames
-        its packets announced.
+        a frame FFmpeg cannot decode inside the file (corrupt data).
     """
     info = io.probe_video(path, transfer, primaries)
     peak = io.HLG_PEAK if hlg_peak is None else hlg_peak
     check_value("hlg_peak", peak, lambda v: np.isfinite(v) & (v > 0), "a positive luminance")
     _check_multiplier(multiplier)
-    times, dt = io.video_times(path)
+    times, dt, whole = io.video_times(path)
+    if not whole:  # (which frames decode, only decoding tells)
+        times, dt, _ = io.video_times(path, cut_short=True)
+        announced = f" of the {info.frames} its index announces" if info.frames else ""
+        warnings.warn(
+            f"{Path(path).name}: the file is cut short; its first {len(times)} frames"
+            f"{announced} decode and are rendered",
+            io.IncompleteInputWarning,
+            stacklevel=2,
+        )
     decoder = {"at": 0, "frames": None}
 
     def decoded():
-        for _, chunk in io.read_video(info, hlg_peak=peak):
+        for _, chunk in io.read_video(info, hlg_peak=peak, cut_short=not whole):
             yield from chunk
 
     def frames(idx):

@@ -135,7 +135,8 @@ def test_variable_frame_rate_keeps_each_frame_s_time(tmp_path):
             out.mux(stream.encode(frame))
         out.mux(stream.encode())
     seconds = np.asarray(stamps) / 1000
-    times, dt = io.video_times(path)
+    times, dt, whole = io.video_times(path)
+    assert whole
     np.testing.assert_allclose(times, seconds)
     np.testing.assert_allclose(dt[:-1], np.diff(seconds))
     source = pipeline.from_video(path, transfer="bt709")  # (untagged)
@@ -191,17 +192,14 @@ def test_render_a_video_and_what_is_refused(tmp_path, capsys):
 
 
 def test_a_truncated_video_and_rgb_video_are_refused(tmp_path, capsys):
-    # A download cut short: with its index first, the frames it announces
-    # end early (the render stops at the first missing one, nothing
-    # written); with its index last, no index: not readable as a video.
+    # A download cut short with its index last: no index, not a video.
+    data = _clip(tmp_path / "whole.mp4", "pq", frames=24).read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: len(data) * 3 // 4])
     out = tmp_path / "out"
-    for faststart, says in ((True, "could not be decoded"), (False, "FFmpeg cannot read")):
-        data = _clip(tmp_path / "whole.mp4", "pq", frames=24, faststart=faststart).read_bytes()
-        cut = tmp_path / "cut.mp4"
-        cut.write_bytes(data[: len(data) * 3 // 4])
-        status, err = run(capsys, "render", str(cut), "--out", str(out))
-        assert status == 2 and says in err.splitlines()[-1], err
-        assert not out.exists()
+    status, err = run(capsys, "render", str(cut), "--out", str(out))
+    assert_one_line_error(status, err, "expected a video file, got one FFmpeg cannot read")
+    assert not out.exists()
     rgb = tmp_path / "rgb.mp4"
     subprocess.run(
         [FFMPEG, "-v", "error", "-f", "lavfi", "-i", "testsrc2=s=64x48:d=0.2", "-c:v",
@@ -234,3 +232,42 @@ def test_streams_an_mp4_cannot_hold_are_left_out_with_a_warning(tmp_path, capsys
         assert kinds == ["video", "audio", *(["subtitle"] if kept else [])]
         warning = f"warning: {name}: its subtitle stream 2 (srt) cannot go into an MP4; left out"
         assert (warning in err.splitlines()) != kept, err
+
+
+def _decoded_by_ffmpeg(path):
+    """How many frames the ffmpeg program decodes of ``path``."""
+    said = subprocess.run(
+        [FFMPEG, "-v", "error", "-i", str(path), "-map", "0:v", "-f", "framemd5", "-"],
+        capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    return sum(1 for line in said.splitlines() if line and not line.startswith("#"))
+
+
+def test_a_video_cut_short_renders_the_frames_that_decode(tmp_path, capsys):
+    # With its index first (as for streaming), a download cut short
+    # announces 24 frames and holds fewer: those that decode (as many as
+    # the ffmpeg program decodes) are rendered, as they are in the whole
+    # clip's render, with a warning and status 3.
+    whole = _clip(tmp_path / "whole.mp4", "pq", frames=24, audio=True, faststart=True)
+    cut = tmp_path / "cut.mp4"
+    data = whole.read_bytes()
+    cut.write_bytes(data[: len(data) * 3 // 4])
+    n = _decoded_by_ffmpeg(cut)
+    assert 0 < n < 24
+    status, err = run(capsys, "render", str(whole), "--out", str(tmp_path / "all"))
+    assert status == 0, err
+    status, err = run(capsys, "render", str(cut), "--out", str(tmp_path / "cut"))
+    assert status == 3, err
+    assert err.splitlines()[0] == (
+        f"warning: cut.mp4: the file is cut short; its first {n} frames of the 24 its index "
+        "announces decode and are rendered"
+    ), err
+    rendered = sorted((tmp_path / "cut").glob("frame_*.png"))
+    assert len(rendered) == n
+    for path in rendered:
+        assert path.read_bytes() == (tmp_path / "all" / path.name).read_bytes(), path.name
+    import av
+
+    with av.open(str(tmp_path / "cut" / "video.mp4")) as video:
+        assert [s.type for s in video.streams] == ["video", "audio"]
+        assert sum(1 for _ in video.decode(video=0)) == n

@@ -13,6 +13,10 @@ from jaxadapt._signals import interrupt_behind, interrupted_message, named_comma
 from jaxadapt.cli._options import COMMANDS, UsageError, _Parser, _version
 from jaxadapt.cli._output import _message
 
+#: The exit status of a run that read an input only in part (a video file
+#: cut short) and rendered what it could read.
+INCOMPLETE = 3
+
 
 def build_parser(command=None):
     """The program's parser: its options, and the options of ``command``
@@ -65,7 +69,7 @@ def _interrupted(e, argv):
 
 def _command(argv):
     """Parse ``argv`` and run its command; its errors as one line and status 2,
-    its warnings as lines."""
+    its warnings as lines (status 3 after an input read only in part)."""
     from rich.console import Console
 
     # A signal while a command's module imports JAX is raised once the import
@@ -82,13 +86,18 @@ def _command(argv):
     import equinox as eqx
     import jax
 
-    _signals.raise_swallowed()  # an interrupt that a garbage-collector callback dropped
+    from jaxadapt._checks import IncompleteInputWarning
 
-    def show(message, *_):
+    _signals.raise_swallowed()  # an interrupt that a garbage-collector callback dropped
+    incomplete = []  # (an input read in part: said, and the status says so)
+
+    def show(message, category, *_):
         console.print(f"warning: {message}", markup=False)
+        incomplete.append(issubclass(category, IncompleteInputWarning))
 
     try:
         with warnings.catch_warnings():  # the library's warnings as the command's own lines
+            warnings.simplefilter("always", IncompleteInputWarning)
             warnings.showwarning = show
             args.run(args, console)
     except MemoryError:
@@ -105,7 +114,7 @@ def _command(argv):
             file=sys.stderr,
         )
         return 2
-    return 0
+    return INCOMPLETE if any(incomplete) else 0
 
 
 def run():

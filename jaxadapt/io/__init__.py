@@ -6,6 +6,7 @@ into place, so an interrupted or failed run never leaves a half-written
 file.
 """
 
+from jaxadapt._checks import IncompleteInputWarning
 from jaxadapt.io._headers import (
     bt709_matrix,
     display_window,
@@ -45,6 +46,7 @@ __all__ = [
     "EIGHT_BIT_FORMATS",
     "FLOAT_FORMATS",
     "HLG_PEAK",
+    "IncompleteInputWarning",
     "PNG_PAETH",
     "SDR_WHITE",
     "VIDEO_TRANSFERS",

@@ -228,31 +228,63 @@ def probe_video(path, transfer=None, primaries=None):
         container.close()
 
 
-def video_times(path):
-    """``(times, dt)``, s, of the first video stream's frames, from their
-    packets' presentation stamps (demuxed, not decoded): each frame's time
-    from the first's, and how long it is shown (until the next frame; the
-    last frame its packet's duration, else the median of the others)."""
+def video_times(path, cut_short=False):
+    """``(times, dt, whole)`` of the first video stream's frames.
+
+    Each frame's time, s, from the first's presentation stamp, and how long
+    it is shown (until the next frame; the last frame its own duration,
+    else the median of the others). The stamps are the packets' (demuxed,
+    not decoded: fast); with ``cut_short=True`` the frames' as they decode
+    from a file cut short (:func:`read_video`), where a frame that refers
+    to a lost packet does not decode though its own packet is whole.
+    ``whole`` is False where the file ends before the frames its index
+    announces, or in a packet's middle.
+    """
+    import av
+
     container = _open(path)
     try:
         stream = container.streams.video[0]
-        base = float(stream.time_base)
-        stamps, last = [], 0
-        for packet in container.demux(stream):
-            if packet.pts is not None:
-                stamps.append(packet.pts)
-                last = packet.duration or 0
+        base, announced = float(stream.time_base), stream.frames
+        stamps, last, whole = [], 0, True
+        items = _video_frames(container, stream, True) if cut_short else container.demux(stream)
+        try:
+            for item in items:
+                whole &= cut_short or not item.is_corrupt
+                if item.pts is not None:
+                    stamps.append(item.pts)
+                    last = item.duration or 0
+        except av.error.FFmpegError:
+            whole = False
     finally:
         container.close()
     if not stamps:
         raise ValueError(f"{path}: expected video frames, got none")
+    whole &= not announced or len(stamps) >= announced
     stamps = np.unique(np.asarray(stamps))  # (presentation order; a repeated stamp once)
     times = (stamps - stamps[0]) * base
     dt = np.diff(times)
     tail = last * base
     if not tail > 0:
         tail = float(np.median(dt)) if len(dt) else 1.0 / 30
-    return times, np.append(dt, tail)
+    return times, np.append(dt, tail), whole
+
+
+def _video_frames(container, stream, cut_short):
+    """The frames of ``stream`` as FFmpeg decodes them, on several threads.
+    A file cut short is decoded on one, packet by packet, the packet that
+    FFmpeg cannot decode (the one cut) skipped as the ffmpeg program skips
+    it: decoded on several threads, the frames still in the decoder at the
+    cut were lost without an error."""
+    import av
+
+    if not cut_short:
+        stream.thread_type = "AUTO"
+        yield from container.decode(stream)
+        return
+    for packet in container.demux(stream):
+        with contextlib.suppress(av.error.InvalidDataError):
+            yield from packet.decode()
 
 
 def _planes(frame, bits):
@@ -384,7 +416,7 @@ def _decoded(y, cb, cr, to_rgb, offset, gamut, hlg_peak, white, transfer):
     return jnp.stack([jnp.maximum(c, 0.0) for c in _mixed(gamut, light)], axis=-1)
 
 
-def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE):
+def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE, cut_short=False):
     """Yield the frames of the video ``info`` describes, ``chunk`` at a time.
 
     Yields
@@ -403,13 +435,16 @@ def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE):
         HLG's display peak, cd/m2.
     white : float
         SDR video's reference white, cd/m2.
+    cut_short : bool
+        The file ends before the frames its index announces
+        (:func:`video_times`): the frames that decode are yielded, those
+        of :func:`video_times` with ``cut_short=True``.
 
     Raises
     ------
     ValueError
-        A frame FFmpeg cannot decode (a truncated or corrupt file) after
-        the frames before it were yielded; the message names the file and
-        the frame.
+        A frame FFmpeg cannot decode (a corrupt file) after the frames
+        before it were yielded; the message names the file and the frame.
     """
     import av
 
@@ -417,11 +452,10 @@ def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE):
     container = _open(info.path)
     try:
         stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
         planes, times, first = [], [], None
         n = 0
         try:
-            for frame in container.decode(stream):
+            for frame in _video_frames(container, stream, cut_short):
                 if frame.width != info.width or frame.height != info.height:
                     raise ValueError(
                         f"{info.path}, frame {n}: expected {info.width}x{info.height}, got "
