@@ -40,10 +40,18 @@ def _signal(i):
     return np.broadcast_to(PATCHES[i % len(PATCHES)] * ramp, (H, W, 3)).astype(np.float32)
 
 
-def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False):
+#: x265's HDR10 static metadata of a clip: a P3-D65 mastering display of
+#: 0.005 to 1000 cd/m2 (xy in 0.00002, luminance in 0.0001 cd/m2), and
+#: MaxCLL, MaxFALL.
+MASTERING = "master-display=G(13250,34500)B(7500,3000)R(34000,16000)WP(15635,16450)" \
+    "L(10000000,50):max-cll=1000,400"  # fmt: skip
+
+
+def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False, hdr10=False):
     """An HEVC (10-bit) or H.264 (SDR, 8-bit) clip of :func:`_signal` frames
     at 24 frames/s, converted by zscale (zimg) and losslessly encoded; with
-    a sine's audio track; without colour tags; the index (moov) first."""
+    a sine's audio track; without colour tags; the index (moov) first;
+    with :data:`MASTERING`'s metadata."""
     raw = b"".join(
         np.ascontiguousarray(_signal(i)[..., [1, 2, 0]].transpose(2, 0, 1)).tobytes()
         for i in range(frames)
@@ -61,7 +69,8 @@ def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False):
         args += ["-f", "lavfi", "-i", f"sine=d={frames / 24}"]
     args += ["-vf", vf]
     if hd:
-        args += ["-c:v", "libx265", "-x265-params", "log-level=error:lossless=1"]
+        params = "log-level=error:lossless=1" + (":hdr10=1:" + MASTERING if hdr10 else "")
+        args += ["-c:v", "libx265", "-x265-params", params]
     else:
         args += ["-c:v", "libx264", "-qp", "0"]
     if tag:
@@ -271,3 +280,45 @@ def test_a_video_cut_short_renders_the_frames_that_decode(tmp_path, capsys):
     with av.open(str(tmp_path / "cut" / "video.mp4")) as video:
         assert [s.type for s in video.streams] == ["video", "audio"]
         assert sum(1 for _ in video.decode(video=0)) == n
+
+
+def test_the_source_record_says_what_the_video_holds(tmp_path, capsys):
+    # Its tags and HDR10 metadata as FFmpeg's showinfo filter prints them.
+    clip = _clip(tmp_path / "clip.mp4", "pq", audio=True, hdr10=True)
+    status, err = run(capsys, "render", str(clip), "--format", "mp4", "--out", str(tmp_path / "o"))
+    assert status == 0, err
+    import json
+    import re
+
+    record = json.loads((tmp_path / "o" / "source.json").read_text())
+    said = subprocess.run(
+        [FFMPEG, "-hide_banner", "-i", str(clip), "-vf", "showinfo", "-frames:v", "1", "-f",
+         "null", "-"],
+        capture_output=True, text=True, check=True,
+    ).stderr  # fmt: skip
+    number = r"([\d.]+)"
+    display = re.search(
+        rf"r\({number},{number}\) g\({number},{number}\) b\({number} {number}\) "
+        rf"wp\({number}, {number}\) min_luminance={number}, max_luminance={number}",
+        said,
+    )
+    light = re.search(r"MaxCLL=(\d+), MaxFALL=(\d+)", said)
+    r, g, b, wp = (list(map(float, display.groups()[i : i + 2])) for i in range(0, 8, 2))
+    assert record["hdr_metadata"] == {
+        "display_primaries_xy": {"red": r, "green": g, "blue": b},
+        "display_white_xy": wp,
+        "display_min_luminance": float(display[9]),
+        "display_max_luminance": float(display[10]),
+        "max_cll": int(light[1]),
+        "max_fall": int(light[2]),
+    }
+    assert record["tags"] == {"color_trc": 16, "color_primaries": 9, "colorspace": 9,
+                              "color_range": 1}  # fmt: skip
+    assert (record["transfer"], record["primaries"], record["bits"]) == ("pq", "bt2020", 10)
+    assert (record["codec"], record["audio"], record["frames"]) == ("hevc", 1, 6)
+    assert record["decoded_to"] == {"units": "cd/m2, linear BT.709 RGB", "multiplier": 1.0}
+    # A clip without the metadata has none; SDR says its white.
+    sdr = _clip(tmp_path / "sdr.mp4", "bt709")
+    status, err = run(capsys, "render", str(sdr), "--format", "mp4", "--out", str(tmp_path / "s"))
+    record = json.loads((tmp_path / "s" / "source.json").read_text())
+    assert record["hdr_metadata"] == {} and record["decoded_to"]["sdr_white"] == 100.0

@@ -15,6 +15,7 @@ from jaxadapt.cli._options import UsageError
 #: Names of the files ``jaxadapt render`` writes.
 RENDER_OUTPUTS = re.compile(
     r"frame_\d{5,}\.(png|exr|pfm)|video\.mp4|contact_sheet\.png|adaptation\.png|diagnostics\.csv"
+    r"|source\.json"
 )
 
 

@@ -74,6 +74,26 @@ def _is_video(files):
     return any(io.is_video(f) for f in files)
 
 
+def _write_video_record(path, args):
+    """``source.json``: what the video FILE says of itself (its stream's
+    codec, size, rate, colour tags as FFmpeg's codes and as read, HDR10's
+    mastering metadata; :class:`~jaxadapt.io.VideoInfo`) and the light its
+    signal was decoded to."""
+    import dataclasses
+    import json
+
+    from jaxadapt import io
+
+    info = io.probe_video(args.files[0], args.video_transfer, args.video_primaries)
+    decoded = {"units": "cd/m2, linear BT.709 RGB", "multiplier": args.multiplier}
+    if info.transfer == "hlg":
+        decoded["hlg_peak"] = args.hlg_peak or io.HLG_PEAK
+    elif info.transfer == "bt709":
+        decoded["sdr_white"] = io.SDR_WHITE
+    record = {**dataclasses.asdict(info), "decoded_to": decoded}
+    path.write_text(json.dumps(record, indent=2) + "\n")
+
+
 def _source(args):
     """The :class:`~jaxadapt.pipeline.Source` of FILEs (their headers read,
     no pixel) or of the built-in scene the options describe."""
@@ -291,6 +311,8 @@ def render(args, console):
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
+        if _is_video(args.files):
+            _write_video_record(staging / "source.json", args)
         write.contact_sheet(plan.op.log_adaptation(table))
         plan.op.plot_diagnostics(staging / "adaptation.png", table, plan.params, plan.title)
         names = sorted(path.name for path in staging.iterdir())

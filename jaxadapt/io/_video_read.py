@@ -93,6 +93,13 @@ class VideoInfo:
         Streams of each kind (copied to a video written from it).
     tags : dict
         The stream's colour tags as FFmpeg names them, for the record.
+    hdr_metadata : dict
+        HDR10's static metadata of the first frame, where it has them
+        (SMPTE ST 2086's mastering display: ``display_primaries_xy`` and
+        ``display_white_xy``, CIE 1931 xy, ``display_min_luminance`` and
+        ``display_max_luminance``, cd/m2; CTA-861.3's ``max_cll`` and
+        ``max_fall``, the greatest content and frame-average light levels,
+        cd/m2): for the record, not used in the decoding (PQ is absolute).
     """
 
     path: str
@@ -111,6 +118,7 @@ class VideoInfo:
     audio: int
     subtitles: int
     tags: dict
+    hdr_metadata: dict = dataclasses.field(default_factory=dict)
 
 
 def is_video(path):
@@ -151,18 +159,46 @@ def _named(table, code, what, path, given):
     raise ValueError(f"{path}: expected a {what} of {', '.join(table)}, got FFmpeg's code {code}")
 
 
-def _colour_tags(container, stream):
-    """The colour tags of the stream's first frame (an H.264 stream's are in
-    its parameter sets, which FFmpeg reads as it decodes: the codec's
-    context says "unspecified" until then); the context's where no frame
-    decodes."""
+def _first_frame(container, stream):
+    """The stream's colour tags and HDR10 metadata, read off its first
+    frame (an H.264 stream's tags are in its parameter sets, which FFmpeg
+    reads as it decodes: the codec's context says "unspecified" until
+    then); the context's tags where no frame decodes."""
     import av
 
     names = ("color_trc", "color_primaries", "colorspace", "color_range")
-    source = stream.codec_context
+    source, metadata = stream.codec_context, {}
     with contextlib.suppress(StopIteration, av.error.FFmpegError):  # (no frame: the context's)
         source = next(container.decode(stream))
-    return {name: int(getattr(source, name)) for name in names}
+        metadata = _hdr_metadata(source.side_data)
+    return {name: int(getattr(source, name)) for name in names}, metadata
+
+
+def _hdr_metadata(side_data):
+    """HDR10's static metadata in a frame's side data (FFmpeg's structures
+    AVMasteringDisplayMetadata, ten rationals and two flags, and
+    AVContentLightMetadata, two unsigned integers; native byte order)."""
+    from av.sidedata.sidedata import Type
+
+    out = {}
+    for item in side_data:
+        data = bytes(item)
+        if item.type == Type.MASTERING_DISPLAY_METADATA and len(data) >= 88:
+            n = np.frombuffer(data[:80], np.int32).reshape(10, 2)
+            value = n[:, 0] / np.where(n[:, 1] == 0, 1, n[:, 1])
+            has_primaries, has_luminance = np.frombuffer(data[80:88], np.int32)
+            xy = [[round(float(v), 5) for v in value[i : i + 2]] for i in range(0, 8, 2)]
+            if has_primaries:
+                out["display_primaries_xy"] = dict(
+                    zip(("red", "green", "blue"), xy[:3], strict=True)
+                )
+                out["display_white_xy"] = xy[3]
+            if has_luminance:
+                out["display_min_luminance"] = float(value[8])
+                out["display_max_luminance"] = float(value[9])
+        elif item.type == Type.CONTENT_LIGHT_LEVEL and len(data) >= 8:
+            out["max_cll"], out["max_fall"] = (int(v) for v in np.frombuffer(data[:8], np.uint32))
+    return out
 
 
 def probe_video(path, transfer=None, primaries=None):
@@ -193,7 +229,7 @@ def probe_video(path, transfer=None, primaries=None):
                 f"{path}: expected Y'CbCr video of 8 to 12 bits (yuv420p, yuv420p10le, ...), "
                 f"got pixel format {fmt}"
             )
-        tags = _colour_tags(container, stream)
+        tags, metadata = _first_frame(container, stream)
         transfer = _named(TRANSFERS, tags["color_trc"], "transfer", path, transfer)
         hd = transfer in ("pq", "hlg")
         default_primaries = PRIMARIES["bt2020" if hd else "bt709"][0]
@@ -223,6 +259,7 @@ def probe_video(path, transfer=None, primaries=None):
             len(container.streams.audio),
             len(container.streams.subtitles),
             tags,
+            metadata,
         )
     finally:
         container.close()
