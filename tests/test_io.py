@@ -221,8 +221,15 @@ def test_exr_data_window_is_placed_in_the_display_window(tmp_path, x, y, w, h):
     np.testing.assert_array_equal(image, expected)
 
 
-@pytest.mark.parametrize("encoding, transfer", [("srgb", "iec61966-2-1"), ("gamma", "bt470m")])
-def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer):
+@pytest.mark.parametrize(
+    "encoding, transfer, codec",
+    [
+        ("srgb", "iec61966-2-1", "h264"),
+        ("gamma", "bt470m", "h264"),
+        ("srgb", "iec61966-2-1", "hevc"),
+    ],
+)
+def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer, codec):
     # ffmpeg's default converts RGB with BT.601's matrix and tags nothing:
     # pure red gets luma 81 where a BT.709 player expects 63 (16 + 219 * 0.2126).
     import subprocess
@@ -230,7 +237,7 @@ def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer):
     import imageio_ffmpeg
 
     path = tmp_path / "red.mp4"
-    with io.video_writer(path, 30, encoding) as send:
+    with io.video_writer(path, 30, encoding, codec=codec) as send:
         send(np.broadcast_to(np.array([255, 0, 0], np.uint8), (2, 16, 16, 3)))
     ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
     luma = subprocess.run(
@@ -241,6 +248,7 @@ def test_video_is_bt709_and_says_so(tmp_path, encoding, transfer):
     assert abs(int(np.frombuffer(luma, np.uint8)[8 * 16 + 8]) - 63) <= 1
     info = subprocess.run([ffmpeg, "-i", str(path)], capture_output=True, text=True).stderr
     assert f"yuv420p(tv, bt709/bt709/{transfer}" in info
+    assert {"h264": "Video: h264 (High) (avc1", "hevc": "Video: hevc (Main) (hvc1"}[codec] in info
 
 
 def _write(path, image, **attributes):
@@ -568,12 +576,19 @@ def test_doubles_within_float32_read_as_their_nearest_float32(tmp_path):
     np.testing.assert_array_equal(read, pixels.astype(np.float32))
 
 
-def test_a_video_frame_larger_than_h264_encodes_is_refused(tmp_path):
-    path = tmp_path / "wide.mp4"
-    says = r"wide.mp4: H.264 \(libx264\) encodes frames of up to 16384 pixels a side; got 16386x2"
-    with pytest.raises(ValueError, match=says), io.video_writer(path, 30) as send:
-        send(np.zeros((1, 2, 16386, 3), np.uint8))
+@pytest.mark.parametrize(
+    "codec, refused, taken",
+    [("h264", (2, 16386), (2, 16384)), ("hevc", (8, 8), (16, 16))],
+)
+def test_a_frame_size_the_encoder_refuses_is_said(tmp_path, codec, refused, taken):
+    # libx264 takes up to 16384 pixels a side, libx265 at least 16.
+    path = tmp_path / "v.mp4"
+    H, W = refused
+    encoder = {"h264": "libx264", "hevc": "libx265"}[codec]
+    says = rf"v.mp4: {encoder} cannot encode frames of {W}x{H} \("
+    with pytest.raises(ValueError, match=says), io.video_writer(path, 30, codec=codec) as send:
+        send(np.zeros((1, H, W, 3), np.uint8))
     assert list(tmp_path.iterdir()) == []
-    with io.video_writer(path, 30) as send:  # the largest side it takes
-        send(np.zeros((1, 2, 16384, 3), np.uint8))
+    with io.video_writer(path, 30, codec=codec) as send:
+        send(np.zeros((1, *taken, 3), np.uint8))
     assert path.exists()

@@ -188,6 +188,10 @@ def test_render_a_video_and_what_is_refused(tmp_path, capsys):
         ([str(clip), "--fps", "30"], "--fps: a video's frames are timed by their own stamps"),
         (["--hlg-peak", "400"], "--hlg-peak: applies to a video FILE"),
         ([str(clip), str(clip)], "FILE: expected one video, or HDR images"),
+        (
+            [str(clip), "--format", "png", "--video-codec", "hevc"],
+            "--video-codec: applies to mp4 output, not --format png",
+        ),
     ):
         out = tmp_path / "refused"
         status, err = run(capsys, "render", *argv, "--out", str(out))
@@ -284,9 +288,18 @@ def test_a_video_cut_short_renders_the_frames_that_decode(tmp_path, capsys):
 
 def test_the_source_record_says_what_the_video_holds(tmp_path, capsys):
     # Its tags and HDR10 metadata as FFmpeg's showinfo filter prints them.
+    # (and HEVC out, on request)
     clip = _clip(tmp_path / "clip.mp4", "pq", audio=True, hdr10=True)
-    status, err = run(capsys, "render", str(clip), "--format", "mp4", "--out", str(tmp_path / "o"))
+    argv = ["render", str(clip), "--format", "mp4", "--video-codec", "hevc"]
+    status, err = run(capsys, *argv, "--out", str(tmp_path / "o"))
     assert status == 0, err
+    import av
+
+    with av.open(str(tmp_path / "o" / "video.mp4")) as video:
+        assert [(s.type, s.codec_context.name) for s in video.streams] == [
+            ("video", "hevc"), ("audio", "aac")
+        ]  # fmt: skip
+        assert sum(1 for _ in video.decode(video=0)) == 6
     import json
     import re
 

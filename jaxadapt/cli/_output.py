@@ -14,13 +14,16 @@ def _message(error):
     return error_message(error)
 
 
-def _video_and_progress(stack, staging, formats, fps, encoding, console, task, video=None):
+def _video_and_progress(
+    stack, staging, formats, fps, encoding, console, task, video=None, codec="h264"
+):
     """Enter, on the exit stack ``stack``, the video writer of a render's
     ``video.mp4`` (where ``formats`` holds mp4) and a progress bar on
     ``console`` (only on a terminal) for ``task`` ``(description, total)``;
     return ``send_video(frames)`` (a no-op without mp4) and ``advance(n)``.
     ``video``: ``(times, path)`` of a video input, whose frame times the
-    video keeps and whose audio and subtitles it copies."""
+    video keeps and whose audio and subtitles it copies; ``codec``: its codec
+    (:data:`jaxadapt.io.VIDEO_CODECS`)."""
     from rich.progress import Progress
 
     from jaxadapt import io
@@ -32,6 +35,7 @@ def _video_and_progress(stack, staging, formats, fps, encoding, console, task, v
                 fps,
                 encoding,
                 *(video or (None, None)),
+                codec=codec,
             )
         )
         if "mp4" in formats

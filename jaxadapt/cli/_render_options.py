@@ -259,6 +259,15 @@ _OUTPUT_OPTIONS = (
         ),
     ),
     (
+        ("--video-codec",),
+        dict(
+            choices=("h264", "hevc"),
+            default=None,
+            help="codec of the mp4 output (default: h264; hevc is smaller at the same "
+            "quality, for players that decode it)",
+        ),
+    ),
+    (
         ("--chunk",),
         dict(
             type=int,
@@ -331,6 +340,10 @@ def _check_options(args):
             raise UsageError(str(error)) from None
     if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"--chunk: expected a positive number of frames, got {args.chunk}")
+    if args.video_codec is not None and args.formats and "mp4" not in args.formats:
+        raise UsageError(
+            f"--video-codec: applies to mp4 output, not --format {', '.join(args.formats)}"
+        )
 
 
 #: Bytes a pixel of a frame takes at most in each output format (PNG: 8 bits a

@@ -17,7 +17,7 @@ REPLAY_FORMATS = ("png", "mp4")
 
 
 #: The options of ``render`` that a replay takes (the others the record fixes).
-TAKEN = ("replay", "out", "formats", "allow_large")
+TAKEN = ("replay", "out", "formats", "video_codec", "allow_large")
 
 
 def check(args, options):
@@ -102,7 +102,14 @@ def render(args, console):
     with _staged(args.out, console, RENDER_OUTPUTS, keep=[path]) as staging:
         with contextlib.ExitStack() as stack:
             send_video, advance = _video_and_progress(
-                stack, staging, formats, fps, encoding, console, (f"replaying {path}", len(rows))
+                stack,
+                staging,
+                formats,
+                fps,
+                encoding,
+                console,
+                (f"replaying {path}", len(rows)),
+                codec=args.video_codec or "h264",
             )
 
             write = FrameOutputs(

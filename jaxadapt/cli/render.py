@@ -291,6 +291,7 @@ def render(args, console):
                 console,
                 (f"rendering {source.name}", T),
                 video=(source.times, args.files[0]) if _is_video(args.files) else None,
+                codec=args.video_codec or "h264",
             )
             write = FrameOutputs(
                 staging,

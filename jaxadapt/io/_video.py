@@ -19,13 +19,20 @@ VIDEO_TRANSFERS = {"srgb": 13, "gamma": 4}
 _BT709, _TV_RANGE = 1, 1
 #: Time base of a video written with given frame times: MPEG's 90 kHz.
 TIME_BASE = Fraction(1, 90000)
-#: The largest side, pixels, that libx264 encodes.
-MAX_SIDE = 16384
+#: Each output codec's FFmpeg encoder, its options (constant rate factors
+#: of like quality: x265's 28 looks as x264's 23 by FFmpeg's H.265 guide, so
+#: x264's 25 is about x265's 30) and the sample entry its MP4 gets (hvc1:
+#: the parameter sets in the header, as Apple's players need).
+VIDEO_CODECS = {
+    "h264": ("libx264", {"crf": "25"}, None),
+    "hevc": ("libx265", {"crf": "30", "x265-params": "log-level=error"}, "hvc1"),
+}
 
 
 @contextlib.contextmanager
-def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
-    """Stream uint8 frames into an H.264 MP4 (libx264 through PyAV).
+def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="h264"):
+    """Stream uint8 frames into an H.264 or HEVC MP4 (libx264 or libx265
+    through PyAV).
 
     Yields ``send(frames)`` taking ``(K, H, W, 3)`` uint8 chunks of BT.709
     RGB encoded with ``encoding`` (``"srgb"`` or ``"gamma"``, 2.2); frames
@@ -37,7 +44,7 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
     the encoding's transfer function, so that a player decodes the colours
     that were sent. (By default FFmpeg converts with BT.601's matrix and
     tags nothing, and players that assume BT.709 for HD video then shift
-    the colours.) Quality: constant rate factor 25.
+    the colours.) Quality: constant rate factor 25 (H.264), 30 (HEVC).
 
     Parameters
     ----------
@@ -53,11 +60,14 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
         interleaved with the frames by time. A stream the MP4 container
         cannot hold (SubRip or ASS subtitles, say) is left out, with a
         warning that names it.
+    codec : str
+        ``"h264"`` or ``"hevc"`` (:data:`VIDEO_CODECS`).
 
     Raises
     ------
     ValueError
-        A frame wider or taller than :data:`MAX_SIDE`.
+        A frame size the encoder refuses (libx264: up to 16384 pixels a
+        side; libx265: at least 16, and no extreme aspect ratios).
     OSError
         FFmpeg could not write the video (a full disk): the message names
         ``path`` and FFmpeg's error.
@@ -86,15 +96,11 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
                 nonlocal stream, copies, n
                 frames = np.asarray(frames)
                 H, W = frames.shape[1:3]
-                if max(H, W) > MAX_SIDE:
-                    raise ValueError(
-                        f"{Path(path).name}: H.264 (libx264) encodes frames of up to "
-                        f"{MAX_SIDE} pixels a side; got {W}x{H}"
-                    )
                 frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
                 try:
                     if stream is None:  # (the video first, the copied streams after it)
-                        stream = _video_stream(out, frames.shape, rate, base, encoding)
+                        stream = _video_stream(out, frames.shape, rate, base, encoding, codec)
+                        _open_encoder(stream, path, (W, H))
                         copies = _Copies(out, copy_from)
                     for frame in frames:
                         t = times[n] if times is not None else n / rate
@@ -123,17 +129,34 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None):
             out.close()
 
 
-def _video_stream(out, shape, rate, base, encoding):
-    stream = out.add_stream("libx264", rate=rate)
+def _video_stream(out, shape, rate, base, encoding, codec):
+    encoder, options, tag = VIDEO_CODECS[codec]
+    stream = out.add_stream(encoder, rate=rate)
     stream.height, stream.width = shape[1:3]
     stream.pix_fmt = "yuv420p"
+    if tag is not None:
+        stream.codec_tag = tag
     cc = stream.codec_context
     cc.time_base = base
-    cc.options = {"crf": "25"}
-    cc.thread_count = 0  # (as many as x264 chooses: 35 % faster than PyAV's default here)
+    cc.options = dict(options)
+    cc.thread_count = 0  # (as many as the encoder chooses: x264 35 % faster than PyAV's default)
     cc.color_primaries, cc.colorspace, cc.color_range = _BT709, _BT709, _TV_RANGE
     cc.color_trc = VIDEO_TRANSFERS[encoding]
     return stream
+
+
+def _open_encoder(stream, path, size):
+    """Open the encoder of ``stream``: a frame size it refuses is said as such
+    (FFmpeg's error alone, without its log, is "Invalid argument")."""
+    import av
+
+    try:
+        stream.codec_context.open()
+    except av.error.FFmpegError as error:
+        raise ValueError(
+            f"{Path(path).name}: {stream.codec_context.name} cannot encode frames of "
+            f"{size[0]}x{size[1]} ({error.strerror})"
+        ) from None
 
 
 class _Copies:
