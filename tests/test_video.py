@@ -47,11 +47,23 @@ MASTERING = "master-display=G(13250,34500)B(7500,3000)R(34000,16000)WP(15635,164
     "L(10000000,50):max-cll=1000,400"  # fmt: skip
 
 
-def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False, hdr10=False):
+#: The encoders of a clip's codecs (lossless but ProRes, whose 422 HQ
+#: profile is visually lossless), and the 10-bit pixel format each gets.
+CODECS = {
+    "hevc": (["-c:v", "libx265"], "yuv420p10le"),
+    "av1": (["-c:v", "libaom-av1", "-aom-params", "lossless=1", "-cpu-used", "8"], "yuv420p10le"),
+    "prores": (["-c:v", "prores_ks", "-profile:v", "3"], "yuv422p10le"),
+}
+
+
+def _clip(
+    path, transfer, frames=6, audio=False, tag=True, faststart=False, hdr10=False, codec="hevc"
+):
     """An HEVC (10-bit) or H.264 (SDR, 8-bit) clip of :func:`_signal` frames
     at 24 frames/s, converted by zscale (zimg) and losslessly encoded; with
     a sine's audio track; without colour tags; the index (moov) first;
-    with :data:`MASTERING`'s metadata."""
+    with :data:`MASTERING`'s metadata; in another of :data:`CODECS` (the
+    container by the suffix of ``path``)."""
     raw = b"".join(
         np.ascontiguousarray(_signal(i)[..., [1, 2, 0]].transpose(2, 0, 1)).tobytes()
         for i in range(frames)
@@ -60,7 +72,8 @@ def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False, hdr1
     trc, z = TAGS[transfer]
     prim, matrix = ("bt2020", "2020_ncl") if hd else ("bt709", "709")
     vf = f"zscale=m={matrix}:r=limited:rin=full:min=gbr:t={z}:tin={z}:p={prim.replace('bt', '')}"
-    vf += f":pin={prim.replace('bt', '')},format={'yuv420p10le' if hd else 'yuv420p'}"
+    encoder, pixels = CODECS[codec] if hd else (["-c:v", "libx264", "-qp", "0"], "yuv420p")
+    vf += f":pin={prim.replace('bt', '')},format={pixels}"
     if not tag:  # (zscale tags the frames it converts; the encoder writes the tags it gets)
         vf += ",setparams=color_primaries=unknown:color_trc=unknown:colorspace=unknown"
     args = [FFMPEG, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo"]
@@ -68,11 +81,10 @@ def _clip(path, transfer, frames=6, audio=False, tag=True, faststart=False, hdr1
     if audio:
         args += ["-f", "lavfi", "-i", f"sine=d={frames / 24}"]
     args += ["-vf", vf]
-    if hd:
+    args += encoder
+    if hd and codec == "hevc":
         params = "log-level=error:lossless=1" + (":hdr10=1:" + MASTERING if hdr10 else "")
-        args += ["-c:v", "libx265", "-x265-params", params]
-    else:
-        args += ["-c:v", "libx264", "-qp", "0"]
+        args += ["-x265-params", params]
     if tag:
         space = "bt2020nc" if hd else "bt709"
         args += ["-color_primaries", prim, "-color_trc", trc, "-colorspace", space]
@@ -121,6 +133,28 @@ def test_a_clip_decodes_to_its_light(tmp_path, transfer):
         rtol = 0.07 if transfer == "bt709" else 0.03  # (one code value of 8 bits, of 10)
         np.testing.assert_allclose(frame, truth, rtol=rtol, atol=0.003 * truth.max())
         # the log-average luminance within 1 % (the issue's target for PQ)
+        log_average = np.mean(np.log(frame @ weights)) - np.mean(np.log(truth @ weights))
+        assert abs(np.expm1(log_average)) < 0.01
+
+
+@pytest.mark.parametrize(
+    "name, codec, pixel_format",
+    [("clip.mkv", "hevc", "yuv420p10le"), ("clip.mkv", "av1", "yuv420p10le"),
+     ("clip.mov", "prores", "yuv422p10le")],
+)  # fmt: skip
+def test_containers_and_codecs_decode_alike(tmp_path, name, codec, pixel_format):
+    # The PQ clip in MKV (HEVC; AV1, lossless) and MOV (ProRes 422 HQ):
+    # the same light, each frame's log-average within 1 %.
+    info = io.probe_video(_clip(tmp_path / name, "pq", codec=codec))
+    assert (info.codec, info.pixel_format, info.transfer, info.primaries) == (
+        codec, pixel_format, "pq", "bt2020"
+    )  # fmt: skip
+    times, frames = next(io.read_video(info, chunk=6))
+    np.testing.assert_allclose(times, np.arange(6) / 24, atol=1e-3)
+    weights = [0.2126, 0.7152, 0.0722]
+    for i, frame in enumerate(frames):
+        truth = _truth("pq", _signal(i))
+        np.testing.assert_allclose(frame, truth, rtol=0.03, atol=0.003 * truth.max())
         log_average = np.mean(np.log(frame @ weights)) - np.mean(np.log(truth @ weights))
         assert abs(np.expm1(log_average)) < 0.01
 

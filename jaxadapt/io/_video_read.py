@@ -81,6 +81,8 @@ class VideoInfo:
     duration : float or None
         Seconds.
     codec, pixel_format : str
+        The coding format as FFmpeg names it (``"hevc"``, ``"av1"``), and
+        the decoded frames' pixel format.
     bits : int
     transfer : str
         ``"pq"``, ``"hlg"`` or ``"bt709"``.
@@ -249,7 +251,7 @@ def probe_video(path, transfer=None, primaries=None):
             float(rate) if rate else math.nan,
             stream.frames or None,
             duration,
-            cc.name,
+            cc.codec.canonical_name,  # (the format: av1, not its decoder, libdav1d)
             fmt,
             PIXEL_FORMATS[fmt][1],
             transfer,
