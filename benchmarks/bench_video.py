@@ -58,14 +58,16 @@ def make_clip(folder, width, height, count):
     return path
 
 
-def write_clip(path, width, height, count):
-    """Render the tunnel's frames, PQ-encode them in float (R'G'B' planes)
-    and let ffmpeg convert them to 10-bit BT.2020 Y'CbCr and encode them."""
+def write_clip(path, width, height, count, **tunnel):
+    """Render the tunnel's frames (``tunnel``: more arguments of
+    :func:`jaxadapt.scenes.tunnel_drive`), PQ-encode them in float (R'G'B'
+    planes) and let ffmpeg convert them to 10-bit BT.2020 Y'CbCr and
+    encode them, at 30 frames/s, with a sine's audio track."""
     import colour
 
     from jaxadapt.scenes import tunnel_drive
 
-    scene = tunnel_drive(width=width, height=height, duration=count / 30.0, fps=30.0)
+    scene = tunnel_drive(width=width, height=height, duration=count / 30.0, fps=30.0, **tunnel)
     to2020 = colour.matrix_RGB_to_RGB(
         colour.RGB_COLOURSPACES["ITU-R BT.709"], colour.RGB_COLOURSPACES["ITU-R BT.2020"]
     )
