@@ -12,6 +12,11 @@ sum of peak resident memory:
   ``zscale`` to linear light (``npl=100``), ``tonemap=hable``, ``zscale``
   to BT.709, libx264 at the same CRF 25, the audio copied.
 
+Then the stages of the render, each alone in this process (compile
+excluded, the median of three passes over the first chunk): seconds a
+frame to decode and convert to cd/m2, to compute the operator, and to
+encode into H.264.
+
 ``--sizes 1920x1080:60`` (default) and others; the record goes to
 ``results/video_<label>.json``.
 """
@@ -22,6 +27,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +106,49 @@ def time_peer(clip, out, repeats):
     return statistics.median(w for w, _ in runs), max(p for _, p in runs)
 
 
+def stages(clip, scratch):
+    """Seconds a frame of each stage of ``jaxadapt render CLIP --format mp4``,
+    each alone (compile excluded, the median of three passes over one
+    chunk)."""
+    import jax.numpy as jnp
+
+    from jaxadapt import display, io, pipeline, runtime
+    from jaxadapt.operators import pattanaik2000 as op
+
+    runtime.retain_freed_memory()
+    source = pipeline.from_video(clip)
+    idx = np.arange(min(pipeline.chunk_size(source.shape), len(source.times)))
+
+    def median(fn):
+        fn()
+        times = []
+        for _ in range(3):
+            start = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - start)
+        return statistics.median(times) / len(idx)
+
+    frames = source.frames(idx)
+    params = op.Params()
+    state = op.init(params, jnp.asarray(frames[0]))
+    dt = jnp.asarray(source.dt[idx], jnp.float32)
+    out = np.asarray(op.run(params, jnp.asarray(frames), dt, state=state)[0])
+    shown = display.to_uint8(display.encode_srgb(out))
+
+    def encode():
+        with io.video_writer(scratch / "stage.mp4", 30.0) as send:
+            send(shown)
+
+    return {
+        "frames_per_chunk": len(idx),
+        "decode_s_per_frame": median(lambda: source.frames(idx)),
+        "compute_s_per_frame": median(
+            lambda: np.asarray(op.run(params, jnp.asarray(frames), dt, state=state)[0])
+        ),
+        "encode_s_per_frame": median(encode),
+    }
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", nargs="+", default=["1920x1080:60"])
@@ -127,6 +176,11 @@ def main():
             "speedup": peer_wall / wall,
         }
         print(size, row, flush=True)
+    for size, row in record["sizes"].items():  # (last: this process imports JAX)
+        width, height = map(int, size.split("x"))
+        clip = make_clip(args.data, width, height, row["frames"])
+        row["stages"] = stages(clip, scratch)
+        print(size, row["stages"], flush=True)
     from common import machine, write_result
 
     record["machine"] = machine(args.label)
