@@ -369,3 +369,22 @@ def test_the_source_record_says_what_the_video_holds(tmp_path, capsys):
     status, err = run(capsys, "render", str(sdr), "--format", "mp4", "--out", str(tmp_path / "s"))
     record = json.loads((tmp_path / "s" / "source.json").read_text())
     assert record["hdr_metadata"] == {} and record["decoded_to"]["sdr_white"] == 100.0
+
+
+def test_dolby_vision_without_a_base_layer_is_refused(tmp_path, capsys):
+    # Profile 5 is stored in a dvhe (or dvh1) sample entry: the HDR10
+    # clip's hev1 entry renamed, as FFmpeg then reports it.
+    clip = _clip(tmp_path / "hdr10.mp4", "pq").read_bytes()
+    assert clip.count(b"hev1") == 1
+    dv = tmp_path / "dv.mp4"
+    dv.write_bytes(clip.replace(b"hev1", b"dvhe"))
+    said = subprocess.run([FFMPEG, "-hide_banner", "-i", str(dv)], capture_output=True, text=True)
+    assert "Video: hevc (Main 10) (dvhe / " in said.stderr
+    for given in ([], ["--video-transfer", "pq"]):
+        out = tmp_path / "out"
+        status, err = run(capsys, "render", str(dv), *given, "--out", str(out))
+        assert_one_line_error(
+            status, err, "dv.mp4: expected HDR10, HLG or SDR video, got Dolby Vision with no "
+            "standard base layer (sample entry dvhe"
+        )  # fmt: skip
+        assert not out.exists()

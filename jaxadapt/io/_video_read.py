@@ -60,6 +60,12 @@ PIXEL_FORMATS = {
     for s in ("420", "422", "444")
     for b in ("", "10le", "12le")
 }
+#: MP4 sample entries of Dolby Vision streams with no standard base layer
+#: (profile 5 in HEVC, 10 in AV1 and the AVC profiles without one): their
+#: Y'CbCr is IPTPQc2, which only a Dolby Vision decoder maps to light.
+#: Streams with a compatible base layer (profile 8) use hvc1, hev1 or av01
+#: and are read through that layer.
+DOLBY_VISION_ONLY = ("dvh1", "dvhe", "dav1", "dvav", "dva1")
 #: HLG's nominal display peak, cd/m2 (ITU-R BT.2100's reference display).
 HLG_PEAK = 1000.0
 #: SDR video's reference white, cd/m2 (ITU-R BT.2035's 100).
@@ -217,13 +223,20 @@ def probe_video(path, transfer=None, primaries=None):
     ------
     FileNotFoundError
     ValueError
-        Not a video FFmpeg reads, no video stream, a pixel format other
-        than 8- to 12-bit Y'CbCr, or a transfer or primaries not tagged
-        and not given; the message names the file.
+        Not a video FFmpeg reads, no video stream, Dolby Vision with no
+        standard base layer (:data:`DOLBY_VISION_ONLY`), a pixel format
+        other than 8- to 12-bit Y'CbCr, or a transfer or primaries not
+        tagged and not given; the message names the file.
     """
     container = _open(path)
     try:
         stream = container.streams.video[0]
+        if stream.codec_tag in DOLBY_VISION_ONLY:
+            raise ValueError(
+                f"{path}: expected HDR10, HLG or SDR video, got Dolby Vision with no standard "
+                f"base layer (sample entry {stream.codec_tag}, as profile 5 is stored), whose "
+                "IPTPQc2 colours only a Dolby Vision decoder maps to light"
+            )
         cc = stream.codec_context
         fmt = cc.format.name if cc.format is not None else None
         if fmt not in PIXEL_FORMATS:
