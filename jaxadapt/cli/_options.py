@@ -168,6 +168,48 @@ def _memory(text):
     return int(value)
 
 
+def _workers(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of processes, got {text!r}")
+    return value
+
+
+#: The options that send a command's work to a Dask cluster (:mod:`jaxadapt.cluster`),
+#: as (flags, add_argument keywords); at most one of them is given.
+CLUSTER_OPTIONS = (
+    (
+        ("--scheduler",),
+        dict(
+            default=None,
+            metavar="ADDRESS",
+            help="run the work on the Dask cluster of this scheduler (e.g. tcp://host:8786; "
+            "needs the cluster extra, and jaxadapt on the workers); the results equal one "
+            "process's",
+        ),
+    ),
+    (
+        ("--workers",),
+        dict(
+            type=_workers,
+            default=None,
+            metavar="N",
+            help="run the work on N worker processes of an embedded Dask cluster (the "
+            "cluster extra)",
+        ),
+    ),
+)
+
+
+def check_cluster_options(args):
+    """Refuse ``--scheduler`` with ``--workers``: one cluster or the other."""
+    if args.scheduler is not None and args.workers is not None:
+        raise UsageError("--workers: starts a cluster of its own; not with --scheduler")
+
+
 #: Largest seed: JAX's keys take a 64-bit signed integer.
 MAX_SEED = 2**63 - 1
 

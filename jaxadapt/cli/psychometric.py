@@ -6,7 +6,14 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxadapt.cli._options import COMMANDS, UsageError, _folder, _seed
+from jaxadapt.cli._options import (
+    CLUSTER_OPTIONS,
+    COMMANDS,
+    UsageError,
+    _folder,
+    _seed,
+    check_cluster_options,
+)
 from jaxadapt.cli._output import _report
 from jaxadapt.cli._staging import FIT_OUTPUTS, _staged
 
@@ -130,6 +137,7 @@ _SIMULATE_OPTIONS = (
     ),
     (("--seed",), dict(type=_seed, default=0, help="seed of the simulation (default 0)")),
     (("--out",), dict(type=_folder, default=Path("out"), help="output folder (default ./out)")),
+    *CLUSTER_OPTIONS,
 )
 
 
@@ -374,7 +382,7 @@ def simulate(args, console):
     import jax
     from rich.progress import Progress
 
-    from jaxadapt import io
+    from jaxadapt import cluster, io
     from jaxadapt.psychophysics import design
     from jaxadapt.psychophysics import experiment as simulated
     from jaxadapt.psychophysics import observer as obs
@@ -387,12 +395,16 @@ def simulate(args, console):
         )
     if args.observers < 1:
         raise UsageError(f"--observers: expected a positive number, got {args.observers}")
+    check_cluster_options(args)
     protocol = design.PROTOCOLS[args.protocol]
     population = dataclasses.replace(
         populations.POPULATIONS[args.protocol], weights=_weights(args.weight, obs.CUES)
     )
     # --out is checked (and staged) before the minutes of simulating
-    with _staged(args.out, console) as staging:
+    with (
+        _staged(args.out, console) as staging,
+        cluster.connected(args.scheduler, args.workers) as client,
+    ):
         render_key, simulate_key = jax.random.split(jax.random.key(args.seed))
         stimuli = obs.render_stimuli(protocol, key=render_key)
         _write_stimuli(staging / "stimuli.csv", protocol, stimuli)
@@ -408,8 +420,14 @@ def simulate(args, console):
             trial_writer, observer_writer = map(io.csv_writer, (trials_file, observers_file))
             trial_writer.writerow(simulated.TRIAL_COLUMNS)
             task = bar.add_task(f"simulating {args.observers} observers", total=args.observers)
-            for first, experiment in simulated.simulate_in_chunks(
-                simulate_key, protocol, stimuli, population, args.observers
+            for first, experiment in _simulated(
+                client,
+                _cluster_option(args),
+                simulate_key,
+                protocol,
+                stimuli,
+                population,
+                args.observers,
             ):
                 n_rows += simulated.append_trials(
                     trial_writer, protocol, experiment, first, args.observers
@@ -429,3 +447,28 @@ def simulate(args, console):
         "included), "
         f"observers.csv, stimuli.csv to {args.out}/"
     )
+
+
+def _cluster_option(args):
+    """The option that named the cluster, for its errors."""
+    return f"--scheduler {args.scheduler}" if args.scheduler is not None else "--workers"
+
+
+def _simulated(client, option, key, protocol, stimuli, population, n):
+    """``(first, experiment)`` blocks of the simulation, in order: in this
+    process (:func:`~jaxadapt.psychophysics.experiment.simulate_in_chunks`),
+    or on the cluster of ``client``, in blocks small enough to keep each
+    worker busy (an observer depends only on the key and its index: the
+    blocks' size changes nothing)."""
+    from jaxadapt import cluster
+    from jaxadapt.psychophysics import experiment as simulated
+
+    if client is None:
+        yield from simulated.simulate_in_chunks(key, protocol, stimuli, population, n)
+        return
+    tasks = cluster.AHEAD_PER_WORKER * cluster.workers_of(client)
+    size = min(simulated.CHUNK, -(-n // tasks))
+    starts = range(0, n, size)
+    args = (key, protocol, stimuli, population, n, size)
+    blocks = cluster.in_order(client, simulated.simulate_block, args, starts, option)
+    yield from zip(starts, blocks, strict=True)

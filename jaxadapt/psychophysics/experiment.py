@@ -189,13 +189,20 @@ def simulate_in_chunks(key, protocol, stimuli, population, n_observers, chunk=No
     n = check_whole("n_observers", n_observers, least=1)
     chunk = CHUNK if chunk is None else check_whole("chunk", chunk, least=1)
     size = min(chunk, n)
-    draw_key, trial_key = jax.random.split(key)
     for first in range(0, n, size):
-        block = _simulate_draws(
-            draw_key, trial_key, protocol, stimuli, population, size, jnp.asarray(first)
-        )
-        stop = min(size, n - first)
-        yield first, jax.tree.map(lambda a, stop=stop: a[:stop], block)
+        yield first, simulate_block(key, protocol, stimuli, population, n, size, first)
+
+
+def simulate_block(key, protocol, stimuli, population, n_observers, size, first):
+    """The block of :func:`simulate_in_chunks` (blocks of ``size``) that
+    starts at observer ``first``: a task of its own, which a cluster's
+    worker computes (:mod:`jaxadapt.cluster`)."""
+    draw_key, trial_key = jax.random.split(key)
+    block = _simulate_draws(
+        draw_key, trial_key, protocol, stimuli, population, size, jnp.asarray(first)
+    )
+    stop = min(size, n_observers - first)
+    return jax.tree.map(lambda a: a[:stop], block)
 
 
 @eqx.filter_jit
