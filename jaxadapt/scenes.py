@@ -136,7 +136,8 @@ def colorchecker_rgb(illuminant="D65"):
     import colour  # not at import: it takes seconds (jaxadapt.color)
 
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
+    # (aligned here, as sd_to_XYZ would align it, with a warning each run)
+    sd_illuminant = colour.SDS_ILLUMINANTS[illuminant].copy().align(cmfs.shape)
     patches = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"].values()
     XYZ = np.array([colour.sd_to_XYZ(sd, cmfs, sd_illuminant) for sd in patches]) / 100.0
     rgb = XYZ @ np.linalg.inv(RGB709_TO_XYZ).T
