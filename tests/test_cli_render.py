@@ -78,13 +78,12 @@ def test_hdr_files_in_and_linear_files_out(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_video_ffmpeg_cannot_write_fails_the_run(tmp_path, capsys):
-    # H.264 is at most 16,384 pixels wide. imageio-ffmpeg's writer does not
-    # check ffmpeg's exit status: unchecked, the run would say it had written
-    # video.mp4, of 0 bytes, after ffmpeg's ten lines of errors on the terminal.
+    # libx264 encodes at most 16,384 pixels a side: the encoder refuses to
+    # open, and the run says so in one line, with nothing written.
     out = tmp_path / "out"
     size = ("--size", "20000x4", "--duration", "0.1", "--format", "mp4")
     status, err = run(capsys, "render", "--scene", "title-step", *size, "--out", str(out))
-    assert_one_line_error(status, err, "video.mp4", "invalid width x height (20000x4)")
+    assert_one_line_error(status, err, "video.mp4: libx264 cannot encode frames of 20000x4 (")
     assert not out.exists()
 
 
