@@ -144,13 +144,14 @@ def workers_of(client):
 
 def _run(function, x64, args, item):
     """A task on a worker: ``function(*args, item)`` in the sender's
-    precision, its arrays brought to NumPy (small to send back)."""
+    precision, its JAX arrays brought to NumPy (small to send back)."""
     import jax
     import numpy as np
 
     _set_up()
     with jax.enable_x64(x64):
-        return jax.tree.map(np.asarray, function(*args, item))
+        result = function(*args, item)
+    return jax.tree.map(lambda a: np.asarray(a) if isinstance(a, jax.Array) else a, result)
 
 
 @functools.cache

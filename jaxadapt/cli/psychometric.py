@@ -11,6 +11,7 @@ from jaxadapt.cli._options import (
     COMMANDS,
     UsageError,
     _folder,
+    _memory,
     _seed,
     check_cluster_options,
 )
@@ -108,6 +109,17 @@ _FIT_OPTIONS = (
             "groups of 11 is the exact one)",
         ),
     ),
+    (
+        ("--memory",),
+        dict(
+            type=_memory,
+            default=None,
+            metavar="SIZE",
+            help="memory for the bootstrap's resampled fits held at once, e.g. 500M or 2G "
+            "(default 256M; on a cluster, each worker's); the results do not depend on it",
+        ),
+    ),
+    *CLUSTER_OPTIONS,
 )
 
 _SIMULATE_OPTIONS = (
@@ -146,8 +158,8 @@ def fit(args, console):
     import jax
     from rich.progress import Progress
 
-    from jaxadapt import figures, io
-    from jaxadapt.psychophysics import fit_table, stats, trials
+    from jaxadapt import cluster, figures, io
+    from jaxadapt.psychophysics import bootstrap, fit_table, stats, trials
 
     if args.resamples < 0 or args.resamples == 1:
         raise UsageError(
@@ -155,6 +167,7 @@ def fit(args, console):
         )
     if args.seed is not None and args.resamples == 0:
         raise UsageError("--seed: seeds the bootstrap, which --resamples 0 leaves out")
+    check_cluster_options(args)
     trial_table = trials.read_trials(args.trials)
     _say_left_out(console, trial_table)
     conditions = list(dict.fromkeys(trial_table.condition))
@@ -190,7 +203,10 @@ def fit(args, console):
     written = ["fits.csv", "group_test.csv", "psychometric.png", "pse.png"]
     if not tested:
         written.remove("group_test.csv")
-    with _staged(out, console, FIT_OUTPUTS, keep=[args.trials]) as staging:
+    with (
+        _staged(out, console, FIT_OUTPUTS, keep=[args.trials]) as staging,
+        cluster.connected(args.scheduler, args.workers) as client,
+    ):
         # In float64, as statsmodels and MATLAB fit: in float32 the
         # log-likelihood of thousands of trials a level loses precision to
         # binomial terms that cancel, so the fits stop at slopes whose
@@ -201,13 +217,16 @@ def fit(args, console):
             count = len(groups.participant)
             task = bar.add_task(f"fitting {count} group{'s' * (count > 1)}", total=count)
             key = jax.random.key(args.seed or 0)
-            table = fit_table.fit_groups(
-                groups,
-                key=key,
+            options = dict(
                 n_resamples=args.resamples,
-                progress=lambda done: bar.advance(task, done),
                 keep_undetermined=args.keep_undetermined,
+                budget=args.memory or bootstrap.BOOTSTRAP_BUDGET,
             )
+            advance = lambda done: bar.advance(task, done)  # noqa: E731
+            if client is None:
+                table = fit_table.fit_groups(groups, key=key, progress=advance, **options)
+            else:
+                table = _fitted(client, _cluster_option(args), groups, key, options, advance)
             rows = stats.group_tests(table, control, method)
         _warn_undetermined(console, groups, table, args.keep_undetermined, bool(rows))
         fit_table.write_fits(staging / "fits.csv", table)
@@ -472,3 +491,30 @@ def _simulated(client, option, key, protocol, stimuli, population, n):
     args = (key, protocol, stimuli, population, n, size)
     blocks = cluster.in_order(client, simulated.simulate_block, args, starts, option)
     yield from zip(starts, blocks, strict=True)
+
+
+def _fitted(client, option, groups, key, options, advance):
+    """:func:`~jaxadapt.psychophysics.fit_table.fit_groups` of ``groups`` on
+    the cluster of ``client``, in consecutive parts of whole bootstrap
+    blocks (up to two parts a worker), each resampled with its groups' keys
+    and in blocks of the whole table's size: the whole table's fit, bit for
+    bit. A table of one block (or Wald intervals, one vmapped fit) is one
+    task."""
+    from jaxadapt import cluster
+    from jaxadapt.psychophysics import bootstrap, fit_table
+
+    count, resamples = len(groups.participant), options["n_resamples"]
+    block = (
+        bootstrap.bootstrap_blocks(count, resamples, options["budget"])[0] if resamples else count
+    )
+    blocks = -(-count // block)
+    size = block * -(-blocks // (cluster.AHEAD_PER_WORKER * cluster.workers_of(client)))
+    parts = [(start, min(start + size, count)) for start in range(0, count, size)]
+    tables = []
+    args = (groups, key, options)
+    for (start, stop), table in zip(
+        parts, cluster.in_order(client, fit_table.fit_rows, args, parts, option), strict=True
+    ):
+        tables.append(table)
+        advance(stop - start)
+    return fit_table.concatenated(tables)

@@ -156,6 +156,8 @@ def bootstrap(
     max_steps=MAX_STEPS,
     budget=BOOTSTRAP_BUDGET,
     progress=None,
+    first=0,
+    total=None,
 ):
     """Fit, and bootstrap confidence intervals for the PSE and the slope.
 
@@ -178,6 +180,12 @@ def bootstrap(
         (:func:`bootstrap_blocks`); the results do not depend on it.
     progress : callable, optional
         Called with the number of datasets done after each batch.
+    first, total : int, optional
+        The datasets are those from ``first`` of a table of ``total`` (by
+        default these alone): each resamples with the key it has in that
+        table, in blocks of the table's size (:func:`bootstrap_blocks`), so
+        that a table cut into parts of whole blocks (a cluster's tasks)
+        gives the whole table's intervals, bit for bit.
 
     Returns
     -------
@@ -216,8 +224,9 @@ def bootstrap(
         *(jax.tree.map(lambda r: r.reshape(-1), rate) for rate in (guess, lapse)),
     )
     D = data[0].shape[0]
-    keys = jax.random.split(key, D)
-    B, block = bootstrap_blocks(D, R, budget)
+    total = D if total is None else check_whole("total", total, least=first + D)
+    keys = jax.random.split(key, total)[first : first + D]
+    B, block = bootstrap_blocks(total, R, budget)  # (the whole table's blocks)
     parametric, confidence = jnp.asarray(method == "parametric"), jnp.asarray(confidence)
     static = dict(count=block, max_steps=int(max_steps))
     results = []

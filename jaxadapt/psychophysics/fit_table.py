@@ -16,7 +16,7 @@ from jax.scipy.special import ndtri
 
 from jaxadapt.io import atomic_path, csv_writer
 from jaxadapt.psychophysics import psychometric
-from jaxadapt.psychophysics.bootstrap import bootstrap
+from jaxadapt.psychophysics.bootstrap import BOOTSTRAP_BUDGET, bootstrap
 from jaxadapt.psychophysics.flags import NO_MLE, NO_PSE, SEPARATION, SINGLE_LEVEL, flag_names
 from jaxadapt.psychophysics.separation import (
     _at_least_the_data,
@@ -24,7 +24,7 @@ from jaxadapt.psychophysics.separation import (
     sigma_bound,
     undetermined,
 )
-from jaxadapt.psychophysics.trials import csv_cell, group_trials, read_trials
+from jaxadapt.psychophysics.trials import Groups, csv_cell, group_trials, read_trials
 
 __all__ = ["FIT_COLUMNS", "FitTable", "fit_groups", "batch_size", "write_fits", "fit_file"]
 
@@ -86,6 +86,9 @@ def fit_groups(
     lapse=0.0,
     progress=None,
     keep_undetermined=False,
+    budget=BOOTSTRAP_BUDGET,
+    first=0,
+    total=None,
 ):
     """Fit every group, with confidence intervals for the PSE.
 
@@ -117,6 +120,13 @@ def fit_groups(
         Keep the estimates of groups whose data do not determine the fit
         (:func:`undetermined`), which the fit's prior and least slope set,
         instead of NaN; ``converged`` is false for them either way.
+    budget : int, optional
+        Bytes the bootstrap's fits hold at once
+        (:func:`~jaxadapt.psychophysics.bootstrap.bootstrap_blocks`).
+    first, total : int, optional
+        ``groups`` are those from ``first`` of a table of ``total``: as
+        for :func:`~jaxadapt.psychophysics.bootstrap.bootstrap`, the
+        intervals are then the whole table's (:func:`fit_rows`).
 
     Returns
     -------
@@ -135,6 +145,9 @@ def fit_groups(
             method=method,
             confidence=confidence,
             progress=progress,
+            budget=budget,
+            first=first,
+            total=total,
             **options,
         )
         fits, low, high = boot.fit, boot.pse_ci[:, 0], boot.pse_ci[:, 1]
@@ -178,6 +191,26 @@ def fit_groups(
         fits.converged & ~open_,
         fits.flags,
     )
+
+
+def fit_rows(groups, key, options, rows):
+    """:func:`fit_groups` of the groups ``rows = (start, stop)`` of
+    ``groups`` with ``options``, as in the whole table's fit: a task of its
+    own, which a cluster's worker computes (:mod:`jaxadapt.cluster`)."""
+    start, stop = rows
+    part = Groups(*(field[start:stop] for field in groups))
+    return fit_groups(part, key=key, first=start, total=len(groups.participant), **options)
+
+
+def concatenated(tables):
+    """One :class:`FitTable` of the consecutive ``tables``."""
+    return FitTable(
+        *(
+            tuple(c for t in columns for c in t) if isinstance(columns[0], tuple)
+            else np.concatenate(columns)
+            for columns in zip(*tables, strict=True)
+        )
+    )  # fmt: skip
 
 
 def batch_size(count):
