@@ -1,0 +1,122 @@
+"""``psychometric simulate`` and ``fit`` on a Dask cluster, against one process.
+
+Whole processes, as a user runs them (each the median of ``--repeats``
+runs after one untimed run that fills the compilation cache; the peak
+memory is the command's own process's, its workers' not counted):
+
+- ``jaxadapt psychometric simulate --protocol afterimage --observers N``
+  in one process, and with ``--workers 1, 2, 4`` (an embedded LocalCluster
+  of that many worker processes, started and ended inside the run);
+- ``jaxadapt psychometric fit`` of its table (``--resamples R``), the same
+  ways.
+
+Then, in this process, the cost of a task on a LocalCluster of two
+workers (the median round trip of an empty task, as ``in_order`` sends
+them), and a model of a simulation's time on H hosts of one worker each
+from the measured parts: ``T(H) = 2 start + work / H + tasks x
+overhead``, where ``start`` (imports and compilation, in the command and
+then in each worker) is measured as the one-process run of one observer,
+``work`` is the one process's time less its start, and there are two
+tasks a worker. This machine has 2 cores: more workers
+than cores only share them, and the numbers say what a cluster costs,
+not what it gains.
+
+    python benchmarks/bench_cluster.py [--observers 2000] [--resamples 200] [--repeats 3]
+
+(recorded with ``--observers 500 --resamples 100 --repeats 2``: 7 minutes)
+"""
+
+import argparse
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).parent
+sys.path.insert(0, str(HERE))
+from bench_render import run_processes  # noqa: E402
+
+WORKERS = (1, 2, 4)
+
+
+def command(*argv):
+    return [sys.executable, "-m", "jaxadapt", "psychometric", *map(str, argv)]
+
+
+def timed(argv, out, repeats):
+    """Median wall time and peak memory of ``argv`` (one untimed run first)."""
+    runs = []
+    for i in range(repeats + 1):
+        shutil.rmtree(out, ignore_errors=True)
+        result = run_processes([command(*argv, "--out", out)])
+        if i:
+            runs.append(result)
+    return statistics.median(w for w, _ in runs), max(p for _, p in runs)
+
+
+def task_overhead(samples=200):
+    """Median seconds of an empty task's round trip on two local workers."""
+    import distributed
+
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as c,
+        distributed.Client(c) as client,
+    ):
+        client.submit(int, 0).result()
+        times = []
+        for i in range(samples):
+            start = time.perf_counter()
+            client.submit(int, i, pure=False).result()
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--observers", type=int, default=2000)
+    parser.add_argument("--resamples", type=int, default=200)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--label", default="cpu-2core")
+    args = parser.parse_args()
+    scratch = Path(tempfile.mkdtemp(prefix="jaxadapt-bench-cluster-"))
+    simulate = ["simulate", "--protocol", "afterimage", "--observers", args.observers]
+    table = scratch / "table"
+    run_processes([command(*simulate, "--out", table)])
+    fit = ["fit", table / "trials.csv", "--resamples", args.resamples]
+    record = {"observers": args.observers, "resamples": args.resamples, "repeats": args.repeats}
+    for name, argv, start in (
+        ("simulate", simulate, [*simulate[:-1], 1]),
+        ("fit", fit, None),
+    ):
+        row = record[name] = {}
+        row["one_process_s"], row["one_process_peak_rss_bytes"] = timed(
+            argv, scratch / "out", args.repeats
+        )
+        if start is not None:
+            row["start_s"] = timed(start, scratch / "out", args.repeats)[0]
+        for n in WORKERS:
+            wall, peak = timed([*argv, "--workers", n], scratch / "out", args.repeats)
+            row[f"workers_{n}_s"], row[f"workers_{n}_peak_rss_bytes"] = wall, peak
+        print(name, row, flush=True)
+    record["task_overhead_s"] = task_overhead()
+    sim = record["simulate"]
+    work = sim["one_process_s"] - sim["start_s"]
+    tasks = {16: 2 * 16, 64: 2 * 64}  # (two tasks a worker, one worker a host)
+    record["simulate_model_s"] = {
+        f"{hosts}_hosts": 2 * sim["start_s"]
+        + work / hosts
+        + tasks[hosts] * record["task_overhead_s"]
+        for hosts in (16, 64)
+    }
+    print(record["task_overhead_s"], record["simulate_model_s"])
+    from common import machine, write_result
+
+    record["machine"] = machine(args.label)
+    shutil.rmtree(scratch, ignore_errors=True)
+    print(write_result("cluster", record, args.label))
+
+
+if __name__ == "__main__":
+    main()
