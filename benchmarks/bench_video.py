@@ -27,7 +27,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -111,6 +110,7 @@ def stages(clip, scratch):
     each alone (compile excluded, the median of three passes over one
     chunk)."""
     import jax.numpy as jnp
+    from common import median_seconds
 
     from jaxadapt import display, io, pipeline, runtime
     from jaxadapt.operators import pattanaik2000 as op
@@ -120,13 +120,7 @@ def stages(clip, scratch):
     idx = np.arange(min(pipeline.chunk_size(source.shape), len(source.times)))
 
     def median(fn):
-        fn()
-        times = []
-        for _ in range(3):
-            start = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - start)
-        return statistics.median(times) / len(idx)
+        return median_seconds(fn, repeats=3) / len(idx)
 
     frames = source.frames(idx)
     params = op.Params()
