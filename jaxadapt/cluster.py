@@ -15,6 +15,8 @@ workers. A task computes in the precision of the process that sent it
 (:func:`jaxadapt.runtime.cache_compilations`).
 """
 
+__all__ = ["CONNECT_TIMEOUT", "AHEAD_PER_WORKER", "connected", "in_order", "workers_of"]
+
 import collections
 import contextlib
 import functools

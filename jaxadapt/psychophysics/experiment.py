@@ -36,6 +36,7 @@ __all__ = [
     "simulate",
     "CHUNK",
     "simulate_in_chunks",
+    "simulate_block",
     "participant_names",
     "TRIAL_COLUMNS",
     "trial_table",

@@ -26,7 +26,16 @@ from jaxadapt.psychophysics.separation import (
 )
 from jaxadapt.psychophysics.trials import Groups, csv_cell, group_trials, read_trials
 
-__all__ = ["FIT_COLUMNS", "FitTable", "fit_groups", "batch_size", "write_fits", "fit_file"]
+__all__ = [
+    "FIT_COLUMNS",
+    "FitTable",
+    "fit_groups",
+    "fit_rows",
+    "concatenated",
+    "batch_size",
+    "write_fits",
+    "fit_file",
+]
 
 #: Columns of ``fits.csv``.
 FIT_COLUMNS = (
