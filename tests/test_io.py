@@ -592,3 +592,17 @@ def test_a_frame_size_the_encoder_refuses_is_said(tmp_path, codec, refused, take
     with io.video_writer(path, 30, codec=codec) as send:
         send(np.zeros((1, *taken, 3), np.uint8))
     assert path.exists()
+
+
+@pytest.mark.parametrize("count", [1, 2, 3])
+def test_hevc_clips_of_a_few_frames_are_written(tmp_path, count):
+    # libx265 stamped a clip of 1 or 2 frames with a garbage DTS (35 of 40
+    # two-frame clips here), which the MP4 muxer refused.
+    for attempt in range(8):
+        path = tmp_path / f"{attempt}.mp4"
+        with io.video_writer(path, 30, codec="hevc") as send:
+            send(np.zeros((count, 64, 64, 3), np.uint8))
+        import av
+
+        with av.open(str(path)) as video:
+            assert sum(1 for _ in video.decode(video=0)) == count

@@ -110,7 +110,7 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="
                             dst_color_range=av.video.reformatter.ColorRange.MPEG,
                         )
                         picture.pts, picture.time_base = round(t / base), base
-                        out.mux(stream.encode(picture))
+                        out.mux(_decode_stamped(stream.encode(picture), rate))
                         copies.until(t)
                         n += 1
                 except av.error.FFmpegError as error:
@@ -119,7 +119,7 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="
             yield send
             try:
                 if stream is not None:
-                    out.mux(stream.encode())
+                    out.mux(_decode_stamped(stream.encode(), rate))
                     copies.until(None)
             except av.error.FFmpegError as error:
                 raise failed(error) from None
@@ -143,6 +143,26 @@ def _video_stream(out, shape, rate, base, encoding, codec):
     cc.color_primaries, cc.colorspace, cc.color_range = _BT709, _BT709, _TV_RANGE
     cc.color_trc = VIDEO_TRANSFERS[encoding]
     return stream
+
+
+#: Frames by which a packet's decoding may precede its presentation: more
+#: than any encoder here reorders (x265 by default: 4 B-frames).
+MAX_REORDER = 16
+
+
+def _decode_stamped(packets, rate):
+    """``packets`` with their decoding stamps where the encoder set none fit:
+    libx265 gives a clip of one or two frames a garbage DTS (-9.4e13 seen),
+    which the MP4 muxer refuses ("pts/dts pair unsupported"); such a
+    packet, whose DTS precedes its PTS by more than :data:`MAX_REORDER`
+    frames, is decoded when it is shown (nothing is reordered in so short
+    a clip)."""
+    for packet in packets:
+        if packet.pts is not None and packet.dts is not None:
+            frames = (packet.pts - packet.dts) * packet.time_base * rate
+            if not 0 <= frames <= MAX_REORDER:
+                packet.dts = packet.pts
+    return packets
 
 
 def _open_encoder(stream, path, size):
