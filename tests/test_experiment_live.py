@@ -153,9 +153,13 @@ def test_the_mesopic_session_starts_with_darkness(tmp_path):
         driver.quit()
         if server.poll() is None:
             server.kill()
+    # Both trials kept once; a trial whose frames came late on a busy
+    # machine is flagged and shown again, as designed (seen once in CI).
     rows = _rows(out)
-    assert len(rows) == 2
-    for r in rows:  # 1.25 s images, 0.75 s black
+    kept = [r for r in rows if r["flagged"] == "false"]
+    assert sorted(r["trial"] for r in kept) == ["0", "1"], rows
+    assert all(r["trial"] in ("0", "1") for r in rows) and len(rows) <= 4, rows
+    for r in kept:  # 1.25 s images, 0.75 s black
         for image in ("image1_ms", "image2_ms"):
             assert 1230 < float(r[image]) < 1270, r
         assert 730 < float(r["blank1_ms"]) < 770, r
