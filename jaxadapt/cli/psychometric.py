@@ -502,6 +502,7 @@ def _fitted(client, option, groups, key, options, advance):
     task."""
     from jaxadapt import cluster
     from jaxadapt.psychophysics import bootstrap, fit_table
+    from jaxadapt.psychophysics.trials import Groups
 
     count, resamples = len(groups.participant), options["n_resamples"]
     block = (
@@ -509,12 +510,11 @@ def _fitted(client, option, groups, key, options, advance):
     )
     blocks = -(-count // block)
     size = block * -(-blocks // (cluster.AHEAD_PER_WORKER * cluster.workers_of(client)))
-    parts = [(start, min(start + size, count)) for start in range(0, count, size)]
+    starts = range(0, count, size)
+    parts = ((start, Groups(*(f[start : start + size] for f in groups))) for start in starts)
     tables = []
-    args = (groups, key, options)
-    for (start, stop), table in zip(
-        parts, cluster.in_order(client, fit_table.fit_rows, args, parts, option), strict=True
-    ):
+    args = (key, options, count)
+    for table in cluster.in_order(client, fit_table.fit_rows, args, parts, option):
         tables.append(table)
-        advance(stop - start)
+        advance(len(table.participant))
     return fit_table.concatenated(tables)

@@ -24,7 +24,7 @@ from jaxadapt.psychophysics.separation import (
     sigma_bound,
     undetermined,
 )
-from jaxadapt.psychophysics.trials import Groups, csv_cell, group_trials, read_trials
+from jaxadapt.psychophysics.trials import csv_cell, group_trials, read_trials
 
 __all__ = [
     "FIT_COLUMNS",
@@ -202,13 +202,13 @@ def fit_groups(
     )
 
 
-def fit_rows(groups, key, options, rows):
-    """:func:`fit_groups` of the groups ``rows = (start, stop)`` of
-    ``groups`` with ``options``, as in the whole table's fit: a task of its
-    own, which a cluster's worker computes (:mod:`jaxadapt.cluster`)."""
-    start, stop = rows
-    part = Groups(*(field[start:stop] for field in groups))
-    return fit_groups(part, key=key, first=start, total=len(groups.participant), **options)
+def fit_rows(key, options, total, part):
+    """:func:`fit_groups` of ``part = (first, groups)``, the groups from
+    ``first`` of a table of ``total``, with ``options``, as in the whole
+    table's fit: a task of its own, which a cluster's worker computes
+    (:mod:`jaxadapt.cluster`), sent only its own groups."""
+    first, groups = part
+    return fit_groups(groups, key=key, first=first, total=total, **options)
 
 
 def concatenated(tables):
