@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -41,7 +42,10 @@ __all__ = [
     "files_rate",
     "from_files",
     "from_video",
+    "part",
     "chunks",
+    "transition",
+    "then",
     "ahead",
     "behind",
     "concatenate",
@@ -274,31 +278,7 @@ def from_video(path, transfer=None, primaries=None, hlg_peak=None, multiplier=1.
             io.IncompleteInputWarning,
             stacklevel=2,
         )
-    decoder = {"at": 0, "frames": None}
-
-    def decoded():
-        for _, chunk in io.read_video(info, hlg_peak=peak, cut_short=not whole):
-            yield from chunk
-
-    def frames(idx):
-        idx = np.asarray(idx)
-        if decoder["frames"] is None or idx[0] != decoder["at"]:  # (first, or not in order)
-            decoder["frames"], decoder["at"] = decoded(), 0
-            for _ in range(int(idx[0])):
-                next(decoder["frames"], None)
-            decoder["at"] = int(idx[0])
-        out = []
-        for i in idx:
-            frame = next(decoder["frames"], None)
-            if frame is None:
-                raise ValueError(
-                    f"{path}: frame {i} of {len(times)} could not be decoded (the file ends "
-                    "before the frames its packets announce: truncated?)"
-                )
-            out.append(frame)
-        decoder["at"] = int(idx[-1]) + 1
-        return _calibrated(np.stack(out), multiplier, path)
-
+    frames = _VideoFrames(info, peak, whole, multiplier, len(times))
     centre = np.array([(info.width - 1) / 2.0, (info.height - 1) / 2.0])
     return Source(
         Path(path).name,
@@ -311,6 +291,45 @@ def from_video(path, transfer=None, primaries=None, hlg_peak=None, multiplier=1.
         FILE_PIXELS_PER_DEGREE,
         (info.height, info.width),
     )
+
+
+class _VideoFrames:
+    """``frames(idx)`` of a video (:func:`from_video`): decoded in order, from
+    where the last call stopped, or from the start for frames before it
+    (a render reads forwards). Pickled without its decoder (a shard of a
+    render on a cluster opens its own)."""
+
+    def __init__(self, info, hlg_peak, whole, multiplier, total):
+        self.info, self.hlg_peak, self.whole = info, hlg_peak, whole
+        self.multiplier, self.total = multiplier, total
+        self.decoder, self.at = None, 0
+
+    def __getstate__(self):
+        return {**self.__dict__, "decoder": None, "at": 0}
+
+    def _decoded(self):
+        chunks = io.read_video(self.info, hlg_peak=self.hlg_peak, cut_short=not self.whole)
+        for _, chunk in chunks:
+            yield from chunk
+
+    def __call__(self, idx):
+        idx = np.asarray(idx)
+        if self.decoder is None or idx[0] != self.at:  # (first, or not in order)
+            self.decoder, self.at = self._decoded(), 0
+            for _ in range(int(idx[0])):
+                next(self.decoder, None)
+            self.at = int(idx[0])
+        out = []
+        for i in idx:
+            frame = next(self.decoder, None)
+            if frame is None:
+                raise ValueError(
+                    f"{self.info.path}: frame {i} of {self.total} could not be decoded (the "
+                    "file ends before the frames its packets announce: truncated?)"
+                )
+            out.append(frame)
+        self.at = int(idx[-1]) + 1
+        return _calibrated(np.stack(out), self.multiplier, self.info.path)
 
 
 #: The ``oiiotool`` options that repair a frame's bad values, what each
@@ -351,7 +370,59 @@ def _check_values(frame, path):
         )
 
 
-def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
+def part(source, start, stop):
+    """The frames ``start`` to ``stop - 1`` of ``source``, a :class:`Source`
+    of their own (a shard of a render split in time): its times still
+    count from the sequence's start."""
+    times = source.times[start:stop]
+    return source._replace(
+        name=f"{source.name}, frames {start} to {stop - 1}",
+        times=times,
+        dt=source.dt[start:stop],
+        frames=lambda idx: source.frames(np.asarray(idx) + start),
+        gaze=lambda idx: source.gaze(np.asarray(idx) + start),
+    )
+
+
+def _read(source, size):
+    """Chunks ``(idx, frames, gaze)`` of ``source``, ``size`` frames each,
+    put on the device."""
+    T = len(source.times)
+    for start in range(0, T, size):
+        idx = np.arange(start, min(start + size, T))
+        frames = jnp.asarray(source.frames(idx))
+        yield idx, frames, jnp.asarray(source.gaze(idx), jnp.float32)
+
+
+def transition(op, params, source, size=None, *, budget=MEMORY_BUDGET):
+    """What the frames of ``source`` do to the state of operator module
+    ``op`` (a ``composable`` one, with ``transition``): the affine map
+    ``(a, b)`` of the whole source, composed chunk by chunk in bounded
+    memory, as :func:`chunks` reads them. A render split in time starts
+    each shard from ``a * state + b`` of the shards before it."""
+    if size is None:
+        size = chunk_size(source.shape, budget)
+    size = check_whole("size", size, least=1, unit="frames")
+    ab = None
+    with contextlib.closing(ahead(_read(source, size))) as frames_ahead:
+        for idx, frames, gaze in frames_ahead:
+            dt = jnp.asarray(source.dt[idx], jnp.float32)
+            step = op.transition(params, frames, dt, gaze=gaze)
+            ab = step if ab is None else then(ab, step)
+    return ab
+
+
+def then(first, second):
+    """The affine map ``(a, b)`` of ``first`` and then ``second``, two maps
+    ``(a, b)`` of an operator's state (``state -> a * state + b``, field by
+    field): ``(a2 a1, a2 b1 + b2)``."""
+    (a1, b1), (a2, b2) = first, second
+    return jax.tree.map(lambda x, y: x * y, a2, a1), jax.tree.map(
+        lambda x, y, z: x * y + z, a2, b1, b2
+    )
+
+
+def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET, state=None):
     """Run operator module ``op`` over ``source``, a chunk of frames per call.
 
     The next chunk's frames are read (and put on the device) in a
@@ -374,12 +445,21 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
         Bytes of frames held at once, for the default ``size``; also how
         far the process may grow past its size after the first chunk
         before freed memory is handed back (:class:`runtime.MemoryCeiling`).
+    state : optional
+        The operator's state at the first frame (a shard of a render split
+        in time); by default its ``init`` of the first frame.
 
     Yields
     ------
     (numpy array, numpy array, dict)
         Frame indices ``(n,)``, display frames ``(n, H, W, 3)`` in [0, 1]
         and the chunk's diagnostics as columns of length ``n``.
+
+    Returns
+    -------
+    The operator's state after the last frame, as the generator's return
+    value (``StopIteration.value``): a shard of a render
+    split in time hands it to the next.
 
     Raises
     ------
@@ -391,18 +471,10 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
     if size is None:
         size = chunk_size(source.shape, budget)
     size = check_whole("size", size, least=1, unit="frames")
-    T = len(source.times)
-
-    def read():
-        for start in range(0, T, size):
-            idx = np.arange(start, min(start + size, T))
-            frames = jnp.asarray(source.frames(idx))
-            yield idx, frames, jnp.asarray(source.gaze(idx), jnp.float32)
-
     ceiling = runtime.MemoryCeiling(budget)
-    with contextlib.closing(ahead(read())) as frames_ahead:
+    with contextlib.closing(ahead(_read(source, size))) as frames_ahead:
         for idx, frames, gaze in frames_ahead:
-            if idx[0] == 0:  # (a state of None is that of an operator without one)
+            if idx[0] == 0 and state is None:  # (None too for an operator without one)
                 state = op.init(
                     params, frames[0], gaze=gaze[0], key=key, adaptation=source.adaptation
                 )
@@ -415,6 +487,7 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET):
             yield idx, _finite(np.asarray(out), idx, op), table
             del out, diag
             ceiling()  # the retained heap bounded, however long the sequence
+    return state
 
 
 #: What a stage's queue holds after its last item.

@@ -6,6 +6,7 @@ import types
 import warnings
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -82,6 +83,44 @@ def test_chunks_give_the_frames_and_diagnostics_of_one_call(case, size, atol):
     assert any(not np.allclose(out[k - 1], out[k], atol=1e-3) for k in range(size, len(out), size))
     for name, column in whole_table.items():
         np.testing.assert_allclose(table[name], column, rtol=1e-5, atol=1e-7)
+
+
+def _drained(stream):
+    """The display frames of a stream of chunks, and the state it ended in."""
+    outs = []
+    while True:
+        try:
+            outs.append(next(stream)[1])
+        except StopIteration as end:
+            return np.concatenate(outs), end.value
+
+
+@pytest.mark.parametrize("background", ["global", "gaussian"])
+def test_parts_started_from_their_composed_maps_give_the_whole(background):
+    """A sequence split in time, each part started from the state that the
+    affine maps of the parts before it give (``transition``, composed over
+    chunks of 2 frames), gives the frames and the final state of the whole;
+    and a part's map is what its steps do to any state, one the sequence
+    never reaches too."""
+    op, params = pattanaik2000, pattanaik2000.Params(background=background, background_scale=2.0)
+    source = _step_source(T=9, adaptation=0.01)
+    whole, final = _drained(pipeline.chunks(op, params, source, 9))
+    state = op.init(params, jnp.asarray(source.frames([0]))[0], adaptation=0.01)
+    elsewhere = pattanaik2000.State(5.0, 7.0, 0.5, 0.9)
+    outs = []
+    for start, stop in ((0, 2), (2, 7), (7, 9)):
+        part = pipeline.part(source, start, stop)
+        np.testing.assert_array_equal(part.times, source.times[start:stop])
+        a, b = pipeline.transition(op, params, part, 2)
+        for y0 in (state, elsewhere):
+            out, end = _drained(pipeline.chunks(op, params, part, 2, state=y0))
+            for x, y in zip(jax.tree.map(lambda a, b, y: a * y + b, a, b, y0), end, strict=True):
+                np.testing.assert_allclose(x, y, rtol=2e-6)
+        outs.append(_drained(pipeline.chunks(op, params, part, 2, state=state))[0])
+        state = jax.tree.map(lambda a, b, y: a * y + b, a, b, state)
+    np.testing.assert_allclose(np.concatenate(outs), whole, atol=1e-5)
+    for x, y in zip(state, final, strict=True):
+        np.testing.assert_allclose(x, y, rtol=2e-6)
 
 
 @pytest.mark.slow

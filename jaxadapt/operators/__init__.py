@@ -151,7 +151,9 @@ class Supports:
         gaze (``jaxadapt view``).
     composable : bool
         Its state update is affine in the state for a fixed input frame, so
-        a sequence can be split in time and the pieces joined exactly.
+        a sequence can be split in time and the pieces joined exactly: a
+        time-dependent one has ``transition(params, frames, dt, *, gaze)``,
+        the map ``state -> a * state + b`` of a stretch of frames, ``(a, b)``.
     why_not : dict
         For an option it does not take, why, where its name is not enough
         (the option's name without dashes to the reason, a clause).

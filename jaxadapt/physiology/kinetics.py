@@ -40,6 +40,8 @@ __all__ = [
     "Relaxation",
     "relaxation_rhs",
     "affine_step",
+    "affine_sequence",
+    "composed",
     "relaxation_step",
     "relaxation_sequence",
     "SMALL_STATE",
@@ -95,6 +97,23 @@ def affine_step(relaxation, dt):
     return jnp.exp(-x), -jnp.expm1(-x) * relaxation.target
 
 
+def composed(a, b):
+    """The one affine map ``y -> A y + B`` of the maps ``y -> a_k y + b_k``
+    applied in turn (leading axis ``k``): what a stretch of steps does to
+    any state, so that a sequence split in time is joined exactly (the
+    state after the stretch is ``A y0 + B``). Folded in order, as
+    :func:`affine_sequence` steps on the CPU."""
+
+    def then(AB, ab):
+        return (ab[0] * AB[0], ab[0] * AB[1] + ab[1]), None
+
+    dtype = jnp.result_type(a, b)
+    shape = jnp.broadcast_shapes(jnp.shape(a), jnp.shape(b))
+    a, b = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (a, b))
+    one = (jnp.ones(shape[1:], dtype), jnp.zeros(shape[1:], dtype))
+    return jax.lax.scan(then, one, (a, b))[0]
+
+
 def relaxation_step(y, relaxation, dt):
     """Exact solution after ``dt`` seconds: ``y_inf + (y - y_inf) exp(-k dt)``,
     evaluated as ``a y + b`` (:func:`affine_step`)."""
@@ -113,7 +132,7 @@ def relaxation_sequence(y0, relaxation, dt):
     a loop of ``T`` dependent steps; the states are then ``A_k y0 + B_k``.
     On the CPU the loop is the faster form (:func:`_prefix_states`).
     Equal to a loop of :func:`relaxation_step` up to rounding, and so are
-    its derivatives (:func:`_affine_sequence`).
+    its derivatives (:func:`affine_sequence`).
 
     Parameters
     ----------
@@ -142,7 +161,7 @@ def relaxation_sequence(y0, relaxation, dt):
 
     a, b = affine_step(Relaxation(*map(steps_first, relaxation)), steps_first(dt))
     y0 = jnp.broadcast_to(y0, jnp.broadcast_shapes(a.shape, b.shape)[1:])
-    return _affine_sequence(y0, a, b)
+    return affine_sequence(y0, a, b)
 
 
 #: Elements per step, of all the states together, up to which
@@ -237,8 +256,10 @@ def _prefix_states_in_turn(y0, a, b):
 
 
 @jax.custom_jvp
-def _affine_sequence(y0, a, b):
-    """:func:`_prefix_states`, with the derivative of the recurrence it solves.
+def affine_sequence(y0, a, b):
+    """``y0`` and the states after each map ``y -> a_k y + b_k`` (leading
+    axis ``k``), shape ``(K + 1, ...)`` (:func:`_prefix_states`), with the
+    derivative of the recurrence it solves.
 
     Differentiating ``y_(k+1) = a_k y_k + b_k`` gives ``dy_(k+1) = a_k dy_k +
     (da_k y_k + db_k)``: the same recurrence with new offsets, so the
@@ -249,11 +270,11 @@ def _affine_sequence(y0, a, b):
     return _prefix_states(y0, a, b)
 
 
-@_affine_sequence.defjvp
+@affine_sequence.defjvp
 def _affine_sequence_jvp(primals, tangents):
     y0, a, b = primals
     dy0, da, db = tangents
-    y = _affine_sequence(y0, a, b)
+    y = affine_sequence(y0, a, b)
     return y, _prefix_states(dy0, a, da * y[:-1] + db)
 
 

@@ -60,7 +60,7 @@ from jaxadapt.operators.pattanaik2000._appearance import (
     tone_map_planes,
 )
 from jaxadapt.operators.pattanaik2000._configure import configure, describe, plot_diagnostics
-from jaxadapt.operators.pattanaik2000._operator import init, run, step
+from jaxadapt.operators.pattanaik2000._operator import init, run, step, transition
 from jaxadapt.operators.pattanaik2000._params import (
     CURVE_LOG10_LUMINANCE,
     POSITIVE_FIELDS,
@@ -108,6 +108,7 @@ __all__ = [
     "init",
     "step",
     "run",
+    "transition",
     "configure",
     "describe",
     "plot_diagnostics",

@@ -32,6 +32,7 @@ from jaxadapt.operators.pattanaik2000._adaptation import (
     advance,
     advance_sequence,
     frame_goals,
+    relaxations,
     static_state,
 )
 from jaxadapt.operators.pattanaik2000._appearance import (
@@ -45,6 +46,7 @@ from jaxadapt.operators.pattanaik2000._params import (
     Params,  # noqa: F401  (run's example)
     State,
 )
+from jaxadapt.physiology import kinetics
 
 
 def _fixation(frames, gaze):
@@ -283,3 +285,46 @@ def _run(params, frames, dt, gaze, state, on_host):
         final_state=final_state,
     )
     return out, diagnostics, verdict
+
+
+def transition(params, frames, dt, *, gaze=None):
+    """What a stretch of frames does to the state: the affine map ``state ->
+    a * state + b``, field by field, for any state at its start.
+
+    The goals of this model depend on the frames alone, and the kinetics
+    step the state by exact affine steps (§4.1.2 and Eq 7), so a stretch of
+    frames composes into one map (:func:`~jaxadapt.physiology.kinetics.composed`):
+    the contract's ``composable``. A sequence split in time is joined
+    exactly with it: each piece starts from ``a * state + b`` of the pieces
+    before it, which equals :func:`run`'s ``final_state`` up to rounding.
+
+    Parameters
+    ----------
+    params, frames, dt, gaze
+        As :func:`run`.
+
+    Returns
+    -------
+    (State, State)
+        ``a`` and ``b``: scalars, or ``(H, W)`` maps with a local background.
+    """
+    gaze = None if gaze is None else jnp.asarray(gaze)
+    frames, dt = jnp.asarray(frames), jnp.asarray(dt)
+    on_host = not is_traced(params, frames, dt, gaze)
+    a, b, verdict = _transition(params, frames, dt, gaze, on_host)
+    raise_verdict(verdict, frames_and_dt_messages("frames"))
+    return a, b
+
+
+@eqx.filter_jit
+def _transition(params, frames, dt, gaze, on_host):
+    guard, dt, verdict = check_frames_and_dt(frames, dt, 4, on_host=on_host)
+    check_one_parameter_set(params)
+    params, dt, gaze = as_dtype((params, dt, gaze), frames.dtype)
+    G_rod, G_cone = jax.vmap(frame_goals, (None, 0, 0))(params, frames, _fixation(frames, gaze))
+    dt = jnp.reshape(dt, dt.shape + (1,) * (G_cone.ndim - 1))  # (maps: over their pixels)
+    maps = [
+        kinetics.composed(*kinetics.affine_step(law, dt))
+        for law in relaxations(params, G_rod + guard, G_cone + guard)
+    ]
+    return State(*(a for a, _ in maps)), State(*(b for _, b in maps)), verdict
