@@ -197,6 +197,45 @@ def test_variable_frame_rate_keeps_each_frame_s_time(tmp_path):
     np.testing.assert_allclose(shown, seconds, atol=1e-4)
 
 
+@pytest.mark.parametrize("timed", [False, True], ids=["at-a-rate", "stamped"])
+def test_a_video_written_in_parts_and_joined_is_the_whole(tmp_path, timed):
+    # Frames counted at 24/s, or stamped at irregular times (a video
+    # input's), written as three parts and joined, with a clip's audio:
+    # each frame at the whole's stamp, the whole's audio, the pictures as
+    # the whole's but for the key frames at the joins (not encoded again).
+    import av
+
+    rng = np.random.default_rng(0)
+    ramp = np.linspace(30, 200, 40)[:, None, None, None]
+    frames = np.clip(ramp + rng.normal(0, 2, (40, H, W, 3)), 0, 255).astype(np.uint8)
+    times = np.cumsum(rng.uniform(0.03, 0.05, 40)) if timed else None
+    clip = _clip(tmp_path / "clip.mp4", "bt709", frames=40, audio=True)
+    whole = tmp_path / "whole.mp4"
+    with io.video_writer(whole, 24, times=times, copy_from=clip) as send:
+        send(frames)
+    parts = []
+    for first, stop in ((0, 13), (13, 14), (14, 40)):
+        parts.append((first, tmp_path / f"part{first}.mp4"))
+        with io.video_writer(parts[-1][1], 24, times=times, first=first) as send:
+            send(frames[first:stop])
+    joined = tmp_path / "joined.mp4"
+    io.joined_video(joined, parts, 24, times, copy_from=clip)
+
+    def read(path):
+        with av.open(str(path)) as video:
+            shown = [
+                (f.pts, f.to_ndarray(format="rgb24").astype(int)) for f in video.decode(video=0)
+            ]
+            video.seek(0)
+            audio = [bytes(p) for p in video.demux(video.streams.audio[0]) if p.size]
+            return [t for t, _ in shown], np.stack([f for _, f in shown]), audio
+
+    (stamps, pictures, audio), (stamps2, pictures2, audio2) = read(whole), read(joined)
+    assert stamps2 == stamps and audio2 == audio and len(audio) > 0
+    assert np.abs(pictures2 - pictures).mean() < 1.5
+    assert np.abs(pictures2 - frames).mean() < 1.2 * np.abs(pictures - frames).mean() + 0.1
+
+
 def test_render_a_video_and_what_is_refused(tmp_path, capsys):
     clip = _clip(tmp_path / "clip.mp4", "pq", audio=True)
     assert io.probe_video(clip).audio == 1

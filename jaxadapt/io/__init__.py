@@ -16,7 +16,7 @@ from jaxadapt.io._headers import (
     rgb_channels,
 )
 from jaxadapt.io._read import frame_rate, hdr_size, read_hdr, to_bt709_gamut
-from jaxadapt.io._video import VIDEO_TRANSFERS, video_writer
+from jaxadapt.io._video import VIDEO_TRANSFERS, joined_video, video_writer
 from jaxadapt.io._video_read import (
     HLG_PEAK,
     SDR_WHITE,
@@ -68,6 +68,7 @@ __all__ = [
     "to_bt709_gamut",
     "video_times",
     "video_writer",
+    "joined_video",
     "write_columns",
     "write_image",
 ]

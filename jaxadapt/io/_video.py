@@ -30,7 +30,7 @@ VIDEO_CODECS = {
 
 
 @contextlib.contextmanager
-def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="h264"):
+def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="h264", first=None):
     """Stream uint8 frames into an H.264 or HEVC MP4 (libx264 or libx265
     through PyAV).
 
@@ -62,6 +62,10 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="
         warning that names it.
     codec : str
         ``"h264"`` or ``"hevc"`` (:data:`VIDEO_CODECS`).
+    first : int, optional
+        For a part of a video split in time, to be joined by
+        :func:`joined_video`: the number of its first frame, in ``times``
+        (or counted at ``fps``), from whose time its stamps count.
 
     Raises
     ------
@@ -80,6 +84,11 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="
 
     rate = Fraction(fps).limit_denominator()
     base = TIME_BASE if times is not None else 1 / rate
+    # The stamps of a part count from its first frame (:func:`joined_video`
+    # adds that frame's back): an MP4 that starts later than 0 is read back
+    # through an edit list, a few ticks off.
+    origin = 0 if first is None else round(_time(first, fps, times) / base)
+    first = first or 0
 
     def failed(error):
         return OSError(f"{Path(path).name}: FFmpeg could not write the video: {error.strerror}")
@@ -103,13 +112,13 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="
                         _open_encoder(stream, path, (W, H))
                         copies = _Copies(out, copy_from)
                     for frame in frames:
-                        t = times[n] if times is not None else n / rate
+                        t = _time(first + n, fps, times)
                         picture = av.VideoFrame.from_ndarray(frame, "rgb24").reformat(
                             format="yuv420p",
                             dst_colorspace=av.video.reformatter.Colorspace.ITU709,
                             dst_color_range=av.video.reformatter.ColorRange.MPEG,
                         )
-                        picture.pts, picture.time_base = round(t / base), base
+                        picture.pts, picture.time_base = round(t / base) - origin, base
                         out.mux(_decode_stamped(stream.encode(picture), rate))
                         copies.until(t)
                         n += 1
@@ -127,6 +136,11 @@ def video_writer(path, fps, encoding="srgb", times=None, copy_from=None, codec="
             if copies is not None:
                 copies.close()
             out.close()
+
+
+def _time(n, fps, times):
+    """Frame ``n``'s time, s: ``times[n]``, or ``n / fps`` exactly (a fraction)."""
+    return times[n] if times is not None else n / Fraction(fps).limit_denominator()
 
 
 def _video_stream(out, shape, rate, base, encoding, codec):
@@ -177,6 +191,62 @@ def _open_encoder(stream, path, size):
             f"{Path(path).name}: {stream.codec_context.name} cannot encode frames of "
             f"{size[0]}x{size[1]} ({error.strerror})"
         ) from None
+
+
+def joined_video(path, parts, fps, times=None, copy_from=None):
+    """One MP4 of the parts of a video split in time, their packets copied
+    in order (not encoded again), each part's stamps moved to its first
+    frame's time.
+
+    Parameters
+    ----------
+    path : str or Path
+        The video, which appears only when it is complete.
+    parts : sequence of (int, path)
+        Each part's first frame's number and its MP4, of one codec and
+        frame size, written by :func:`video_writer` with that ``first`` and
+        this ``fps`` and ``times``; in order.
+    fps, times, copy_from
+        As :func:`video_writer`'s.
+
+    Raises
+    ------
+    OSError
+        FFmpeg could not write the video; the message names ``path``.
+    """
+    import av
+
+    with atomic_path(path) as tmp, contextlib.ExitStack() as stack:
+        out = av.open(tmp, "w", format="mp4")
+        stack.callback(out.close)
+        stream, copies, last = None, None, -(2**62)
+        try:
+            for first, part in parts:
+                with av.open(str(part)) as container:
+                    source = container.streams.video[0]
+                    if stream is None:
+                        stream = out.add_stream_from_template(source)
+                        copies = _Copies(out, copy_from)
+                        stack.callback(copies.close)
+                    shift = round(_time(first, fps, times) / source.time_base)
+                    for packet in container.demux(source):
+                        if packet.dts is None:  # (the demuxer's last, empty packet)
+                            continue
+                        # A part that reorders frames decodes its first ones a frame or
+                        # two early: after a part that reorders less (a short one), its
+                        # stamps are moved on to after the last, a tick at a time.
+                        packet.pts = packet.pts + shift
+                        packet.dts = last = max(packet.dts + shift, last + 1)
+                        t = float(packet.pts * packet.time_base)
+                        packet.stream = stream
+                        out.mux(packet)
+                        copies.until(t)
+            if copies is not None:
+                copies.until(None)
+        except av.error.FFmpegError as error:
+            raise OSError(
+                f"{Path(path).name}: FFmpeg could not write the video: {error.strerror}"
+            ) from None
 
 
 class _Copies:
