@@ -1,4 +1,4 @@
-"""``psychometric simulate`` and ``fit`` on a Dask cluster, against one process.
+"""``psychometric simulate``, ``fit`` and ``render`` on a Dask cluster, against one process.
 
 Whole processes, as a user runs them (each the median of ``--repeats``
 runs after one untimed run that fills the compilation cache; the peak
@@ -8,7 +8,10 @@ memory is the command's own process's, its workers' not counted):
   in one process, and with ``--workers 1, 2, 4`` (an embedded LocalCluster
   of that many worker processes, started and ended inside the run);
 - ``jaxadapt psychometric fit`` of its table (``--resamples R``), the same
-  ways.
+  ways;
+- ``jaxadapt render --duration D`` (the tunnel drive at its default size,
+  30 frames/s, PNG frames and the video), the same ways: split in time
+  into shards of at least 16 frames, four a worker.
 
 Then, in this process, the cost of a task on a LocalCluster of two
 workers (the median round trip of an empty task, as ``in_order`` sends
@@ -21,9 +24,10 @@ tasks a worker. This machine has 2 cores: more workers
 than cores only share them, and the numbers say what a cluster costs,
 not what it gains.
 
-    python benchmarks/bench_cluster.py [--observers 2000] [--resamples 200] [--repeats 3]
+    python benchmarks/bench_cluster.py [--observers 2000] [--resamples 200] [--seconds 10]
+        [--repeats 3]
 
-(recorded with ``--observers 500 --resamples 100 --repeats 2``: 7 minutes)
+(recorded with ``--observers 500 --resamples 100 --seconds 10 --repeats 2``: 12 minutes)
 """
 
 import argparse
@@ -42,7 +46,7 @@ WORKERS = (1, 2, 4)
 
 
 def command(*argv):
-    return [sys.executable, "-m", "jaxadapt", "psychometric", *map(str, argv)]
+    return [sys.executable, "-m", "jaxadapt", *map(str, argv)]
 
 
 def timed(argv, out, repeats):
@@ -77,18 +81,26 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--observers", type=int, default=2000)
     parser.add_argument("--resamples", type=int, default=200)
+    parser.add_argument("--seconds", type=float, default=10.0, help="the render's duration")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--label", default="cpu-2core")
     args = parser.parse_args()
     scratch = Path(tempfile.mkdtemp(prefix="jaxadapt-bench-cluster-"))
-    simulate = ["simulate", "--protocol", "afterimage", "--observers", args.observers]
+    simulate = ["psychometric", "simulate", "--protocol", "afterimage", "--observers"]
     table = scratch / "table"
-    run_processes([command(*simulate, "--out", table)])
-    fit = ["fit", table / "trials.csv", "--resamples", args.resamples]
-    record = {"observers": args.observers, "resamples": args.resamples, "repeats": args.repeats}
+    run_processes([command(*simulate, args.observers, "--out", table)])
+    fit = ["psychometric", "fit", table / "trials.csv", "--resamples", args.resamples]
+    render = ["render", "--duration"]
+    record = {
+        "observers": args.observers,
+        "resamples": args.resamples,
+        "render_seconds": args.seconds,
+        "repeats": args.repeats,
+    }
     for name, argv, start in (
-        ("simulate", simulate, [*simulate[:-1], 1]),
+        ("simulate", [*simulate, args.observers], [*simulate, 1]),
         ("fit", fit, None),
+        ("render", [*render, args.seconds], [*render, 0.1]),
     ):
         row = record[name] = {}
         row["one_process_s"], row["one_process_peak_rss_bytes"] = timed(
@@ -101,16 +113,20 @@ def main():
             row[f"workers_{n}_s"], row[f"workers_{n}_peak_rss_bytes"] = wall, peak
         print(name, row, flush=True)
     record["task_overhead_s"] = task_overhead()
-    sim = record["simulate"]
-    work = sim["one_process_s"] - sim["start_s"]
-    tasks = {16: 2 * 16, 64: 2 * 64}  # (two tasks a worker, one worker a host)
-    record["simulate_model_s"] = {
-        f"{hosts}_hosts": 2 * sim["start_s"]
-        + work / hosts
-        + tasks[hosts] * record["task_overhead_s"]
-        for hosts in (16, 64)
-    }
-    print(record["task_overhead_s"], record["simulate_model_s"])
+    # (two tasks a worker for a simulation, four shards for a render; one worker a host)
+    for name, per_worker in (("simulate", 2), ("render", 4)):
+        row = record[name]
+        work = row["one_process_s"] - row["start_s"]
+        record[f"{name}_model_s"] = {
+            f"{hosts}_hosts": 2 * row["start_s"]
+            + work / hosts
+            + per_worker * hosts * record["task_overhead_s"]
+            for hosts in (16, 64)
+        }
+        print(name, record[f"{name}_model_s"])
+    frames = round(args.seconds * 30)
+    record["render"]["frames"] = frames
+    record["render"]["one_process_ms_per_frame"] = 1e3 * record["render"]["one_process_s"] / frames
     from common import machine, write_result
 
     record["machine"] = machine(args.label)

@@ -15,7 +15,19 @@ workers. A task computes in the precision of the process that sent it
 (:func:`jaxadapt.runtime.cache_compilations`).
 """
 
-__all__ = ["CONNECT_TIMEOUT", "AHEAD_PER_WORKER", "connected", "in_order", "workers_of"]
+__all__ = [
+    "CONNECT_TIMEOUT",
+    "AHEAD_PER_WORKER",
+    "SHARDS_PER_WORKER",
+    "SHARD_LEAST",
+    "connected",
+    "in_order",
+    "handed_on",
+    "workers_of",
+    "shard_bounds",
+    "shard_states",
+    "on_host",
+]
 
 import collections
 import contextlib
@@ -28,6 +40,12 @@ CONNECT_TIMEOUT = 10.0
 #: Tasks in flight per worker: a worker starts the next as soon as it hands
 #: back one, and the results held for the ordered output stay bounded.
 AHEAD_PER_WORKER = 2
+#: Shards of a render split in time, per worker: more than one each, so
+#: that a slow or lost worker holds back a small part of the sequence.
+SHARDS_PER_WORKER = 4
+#: The fewest frames of a shard: each shard reads, and compiles for, its
+#: own chunks, and a short one would cost more than it renders.
+SHARD_LEAST = 16
 
 
 def _distributed(option):
@@ -74,17 +92,20 @@ def connected(scheduler=None, workers=None):
                 raise ValueError(f"--workers: expected a positive number, got {workers}")
             import jax
 
-            cluster = distributed.LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,  # (spawned: each its own JAX and XLA threads)
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-                # this process's default precision, set before the workers import JAX
-                env={"JAX_ENABLE_X64": str(bool(jax.config.jax_enable_x64))},
+            cluster = stack.enter_context(
+                distributed.LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,  # (spawned: each its own JAX and XLA threads)
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                    # this process's default precision, set before the workers import JAX
+                    env={"JAX_ENABLE_X64": str(bool(jax.config.jax_enable_x64))},
+                )
             )
+            # (the client closed first: closed after its cluster, it keeps
+            # Dask's IO loop thread alive until Python finalises)
             client = stack.enter_context(distributed.Client(cluster))
-            stack.callback(cluster.close)
         else:
             try:
                 client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)
@@ -106,10 +127,22 @@ def in_order(client, function, args, items, option):
         The scheduler was lost, or a task's workers kept dying; the message
         names ``option``.
     """
+    task = functools.partial(_run, function, _x64(), args)
+    yield from _gathered(client, lambda item: client.submit(task, item, pure=False), items, option)
+
+
+def _x64():
+    """Whether this process computes in 64 bits (``jax_enable_x64``)."""
     import jax
 
+    return bool(jax.config.jax_enable_x64)
+
+
+def _gathered(client, submit, items, option):
+    """The results of ``submit(item)`` (a future) of each of ``items``, in
+    order, a few per worker in flight; a lost scheduler or a task whose
+    workers kept dying as an OSError naming ``option``."""
     distributed = _distributed(option)
-    task = functools.partial(_run, function, bool(jax.config.jax_enable_x64), args)
     lost = (
         OSError,
         TimeoutError,
@@ -121,14 +154,11 @@ def in_order(client, function, args, items, option):
     except lost as error:
         raise OSError(f"{option}: the Dask scheduler was lost ({error})") from None
     items = iter(items)
-    futures = collections.deque(
-        client.submit(task, item, pure=False)
-        for item in itertools.islice(items, AHEAD_PER_WORKER * workers)
-    )
+    futures = collections.deque(map(submit, itertools.islice(items, AHEAD_PER_WORKER * workers)))
     try:
         while futures:
             result = futures.popleft().result()
-            futures.extend(client.submit(task, i, pure=False) for i in itertools.islice(items, 1))
+            futures.extend(map(submit, itertools.islice(items, 1)))
             yield result
     except lost as error:
         raise OSError(f"{option}: the Dask scheduler was lost ({type(error).__name__})") from None
@@ -139,21 +169,58 @@ def in_order(client, function, args, items, option):
             future.cancel()
 
 
+def handed_on(client, function, args, items, option):
+    """``function(*args, item, previous)`` of each of ``items`` in turn on the
+    cluster of ``client``, ``previous`` the result of the item before
+    (None for the first), handed from worker to worker without passing
+    through here; the results yielded in order, as :func:`in_order`'s.
+    For work whose state flows from one item to the next (a render split
+    in time whose operator does not compose).
+
+    Raises
+    ------
+    OSError
+        As :func:`in_order`.
+    """
+    previous = [None]
+
+    def chained(item):  # (the task of the item before, a future Dask resolves)
+        future = client.submit(_run, function, _x64(), args, item, previous[0], pure=False)
+        previous[0] = future
+        return future
+
+    yield from _gathered(client, chained, items, option)
+
+
 def workers_of(client):
     """How many workers the cluster of ``client`` has now (at least 1)."""
     return max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
 
 
-def _run(function, x64, args, item):
-    """A task on a worker: ``function(*args, item)`` in the sender's
-    precision, its JAX arrays brought to NumPy (small to send back)."""
+def _run(function, x64, args, *item):
+    """A task on a worker: ``function(*args, *item)`` in the sender's
+    precision, its results on the host (:func:`on_host`)."""
     import jax
-    import numpy as np
 
     _set_up()
     with jax.enable_x64(x64):
-        result = function(*args, item)
-    return jax.tree.map(lambda a: np.asarray(a) if isinstance(a, jax.Array) else a, result)
+        return on_host(function(*args, *item))
+
+
+def on_host(tree):
+    """``tree`` with its JAX arrays as NumPy's (small to send back), but for
+    PRNG keys (which pickle as they are). A tree with none is returned as it
+    is: ``jax.tree.map`` would sort its dicts' keys (a table's columns)."""
+    import jax
+    import numpy as np
+
+    def host(a):
+        is_key = isinstance(a, jax.Array) and jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key)
+        return np.asarray(a) if isinstance(a, jax.Array) and not is_key else a
+
+    if all(host(leaf) is leaf for leaf in jax.tree.leaves(tree)):
+        return tree
+    return jax.tree.map(host, tree)
 
 
 @functools.cache
@@ -165,3 +232,48 @@ def _set_up():
     runtime.use_wide_vectors()
     runtime.retain_freed_memory()
     runtime.cache_compilations()
+
+
+def shard_bounds(frames, workers):
+    """``(start, stop)`` of the shards of a render of ``frames`` frames split
+    in time for ``workers`` workers: :data:`SHARDS_PER_WORKER` each, none
+    shorter than :data:`SHARD_LEAST` frames (but the only one), as even as
+    whole frames allow."""
+    import numpy as np
+
+    n = max(1, min(SHARDS_PER_WORKER * workers, frames // SHARD_LEAST))
+    edges = np.linspace(0, frames, n + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def shard_states(client, op, params, source, bounds, key, budget, option):
+    """The state of operator module ``op`` at the first frame of each shard
+    ``bounds`` of ``source``, exactly (up to rounding) as one process
+    reaches it, for an operator that composes in time (``transition``:
+    :attr:`~jaxadapt.operators.Supports.composable`).
+
+    Each shard but the last is reduced on the cluster to the affine map it
+    applies to the state (:func:`jaxadapt.pipeline.transition`); the
+    viewer's state before the first frame (``op.init``, which reads that
+    frame here) is carried through the maps in order by
+    :func:`jaxadapt.physiology.kinetics.affine_sequence` (on a GPU an
+    associative scan over the shards).
+    """
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxadapt import pipeline
+    from jaxadapt.physiology import kinetics
+
+    first = jnp.asarray(source.frames(np.arange(1)))[0]
+    gaze = jnp.asarray(source.gaze(np.arange(1)), jnp.float32)[0]
+    state = op.init(params, first, gaze=gaze, key=key, adaptation=source.adaptation)
+    if len(bounds) == 1:
+        return [state]
+    parts = [pipeline.part(source, a, b) for a, b in bounds[:-1]]
+    transition = functools.partial(pipeline.transition, budget=budget)
+    maps = list(in_order(client, transition, (op, params), parts, option))
+    a, b = (jax.tree.map(lambda *x: jnp.stack(x), *m) for m in zip(*maps, strict=True))
+    states = jax.tree.map(kinetics.affine_sequence, state, a, b)
+    return [jax.tree.map(lambda x, k=k: x[k], states) for k in range(len(bounds))]

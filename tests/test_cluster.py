@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from cli_runs import assert_one_line_error, run
 
@@ -34,8 +35,8 @@ def _free_port():
 
 
 @contextlib.contextmanager
-def _cluster(logs, nanny=True):
-    """``(address, processes)`` of a scheduler and two single-threaded
+def _cluster(logs, nanny=True, workers=2):
+    """``(address, processes)`` of a scheduler and ``workers`` single-threaded
     workers, the scheduler first (without nannies, a worker killed stays
     dead)."""
     address = f"tcp://127.0.0.1:{_free_port()}"
@@ -52,12 +53,12 @@ def _cluster(logs, nanny=True):
 
     start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1],
           "--no-dashboard")  # fmt: skip
-    for i in range(2):
+    for i in range(workers):
         start(f"worker{i}", "worker", address, "--nthreads", "1", "--no-dashboard",
               "--name", f"w{i}", *([] if nanny else ["--no-nanny"]))  # fmt: skip
     try:
         with distributed.Client(address, timeout=60) as client:
-            client.wait_for_workers(2, timeout=120)
+            client.wait_for_workers(workers, timeout=120)
         yield address, started
     finally:
         for process in reversed(started):
@@ -122,6 +123,95 @@ def test_simulate_and_fit_on_a_cluster_equal_one_process(tmp_path, capsys, sched
     assert _spawned() - before == set()
 
 
+#: A render of 48 frames: three shards of 16 on a cluster of two workers.
+FORMATS = ["--format", "exr", "--format", "png", "--format", "mp4"]
+RENDER = ["render", "--size", "48x32", "--duration", "4", "--fps", "12", *FORMATS]
+
+
+def _video(path):
+    """Each frame's stamp (s) and pixels, the streams' types, the audio's packets."""
+    import av
+
+    with av.open(str(path)) as video:
+        frames = [(f.time, f.to_ndarray(format="rgb24").astype(int)) for f in video.decode(video=0)]
+        video.seek(0)
+        audio = [bytes(p) for s in video.streams.audio for p in video.demux(s) if p.size]
+        return frames, [s.type for s in video.streams], audio
+
+
+def _png(path):
+    """An 8-bit file's pixels, as ints."""
+    import OpenImageIO as oiio
+
+    return oiio.ImageBuf(str(path)).get_pixels(oiio.UINT8).astype(int)
+
+
+def _assert_renders_alike(one, other, exact=False):
+    """Two renders' outputs alike: the same files; EXR frames and the
+    diagnostics equal (up to float32 rounding, unless ``exact``), PNG frames
+    within a level; the video's frames at the same times, its pictures
+    within a few levels (a video split in time has a key frame at each
+    shard's start), the same audio."""
+    from jaxadapt import io
+
+    names = sorted(p.name for p in one.iterdir())
+    assert sorted(p.name for p in other.iterdir()) == names
+    tolerance = {"rtol": 0, "atol": 0} if exact else {"rtol": 1e-5, "atol": 1e-6}
+    for name in names:
+        if name.endswith(".exr"):
+            np.testing.assert_allclose(
+                io.read_hdr(other / name), io.read_hdr(one / name), **tolerance, err_msg=name
+            )
+        elif name.startswith("frame_") and name.endswith(".png"):
+            a, b = (_png(d / name) for d in (one, other))
+            assert np.abs(a - b).max() <= (0 if exact else 1), name
+    lines = [(d / "diagnostics.csv").read_text().splitlines() for d in (one, other)]
+    assert lines[0][0] == lines[1][0]  # (the columns in order)
+    a, b = (np.array([r.split(",") for r in rows[1:]], float) for rows in lines)
+    np.testing.assert_allclose(b, a, rtol=0 if exact else 1e-5)
+    (times, streams, audio, errors), (times2, streams2, audio2, errors2) = (
+        _video_and_errors(d) for d in (one, other)
+    )
+    assert (times2, streams2, audio2) == (times, streams, audio)
+    # (the parts' pictures as faithful to the frames as the whole's)
+    assert np.mean(errors2) < 1.2 * np.mean(errors) and max(errors2) < 1.2 * max(errors)
+
+
+def _video_and_errors(folder):
+    """The times, streams and audio of a render's video, and its pictures'
+    mean absolute difference from the PNG frames, levels."""
+    frames, streams, audio = _video(folder / "video.mp4")
+    errors = [
+        np.abs(f - _png(folder / f"frame_{i:05d}.png")).mean() for i, (_, f) in enumerate(frames)
+    ]
+    return [t for t, _ in frames], streams, audio, errors
+
+
+def test_render_on_a_cluster_equals_one_process(tmp_path, capsys, scheduler, monkeypatch):
+    # The 2000 operator composes in time: its shards start from the state
+    # the maps of the shards before them give (with a global and a local
+    # background); the 2015 one's state is handed from shard to shard (the
+    # same computation, bit for bit); a tone curve's shards are independent.
+    # A video's parts are joined with its stamps and its audio.
+    monkeypatch.setenv("XLA_FLAGS", THIS_PROCESS_XLA_FLAGS)
+    from test_video import _clip
+
+    clip = _clip(tmp_path / "clip.mp4", "pq", frames=40, audio=True)
+    for name, argv, exact in (
+        ("global", RENDER, False),
+        ("local", [*RENDER, "--background", "gaussian"], False),
+        ("jacobs", [*RENDER, "--operator", "jacobs2015"], True),
+        ("curve", [*RENDER, "--operator", "photographic"], True),
+        ("video", ["render", str(clip), *FORMATS], False),
+    ):
+        one, other = tmp_path / f"{name}_one", tmp_path / f"{name}_cluster"
+        status, err = run(capsys, *argv, "--out", str(one))
+        assert status == 0, err
+        status, err = run(capsys, *argv, "--scheduler", scheduler, "--out", str(other))
+        assert status == 0, err
+        _assert_renders_alike(one, other, exact)
+
+
 def test_a_cluster_that_cannot_be_reached_is_one_line(tmp_path, capsys, monkeypatch):
     from jaxadapt import cluster
 
@@ -135,6 +225,10 @@ def test_a_cluster_that_cannot_be_reached_is_one_line(tmp_path, capsys, monkeypa
     assert_one_line_error(
         status, err, "--workers: starts a cluster of its own; not with --scheduler"
     )
+    status, err = run(
+        capsys, "render", "--replay", str(tmp_path), "--workers", "2", "--out", str(out)
+    )
+    assert_one_line_error(status, err, "--workers: a replay writes the frames it recorded")
     with pytest.raises(SystemExit) as exit_:
         run(capsys, *SIMULATE, "--workers", "0", "--out", str(out))
     assert exit_.value.code == 2
@@ -158,27 +252,37 @@ def test_without_a_cluster_option_dask_is_not_needed(tmp_path, capsys, monkeypat
 def test_a_worker_killed_changes_nothing_a_scheduler_lost_is_one_line(
     tmp_path, capsys, monkeypatch
 ):
-    # Each killed once the first block's result is in, the others in flight.
+    # A worker killed once the first result is in, the others in flight: in
+    # a simulation, then in a render (its shards' maps found; its frames
+    # being rendered); then the scheduler.
     from jaxadapt import cluster
 
-    status, err = run(capsys, *SIMULATE, "--out", str(tmp_path / "one"))
-    assert status == 0, err
-    original, victim = cluster.in_order, []
+    monkeypatch.setenv("XLA_FLAGS", THIS_PROCESS_XLA_FLAGS)
+    for argv, out in ((SIMULATE, "one"), (RENDER, "render_one")):
+        status, err = run(capsys, *argv, "--out", str(tmp_path / out))
+        assert status == 0, err
+    original, victims, calls = cluster.in_order, [], []
 
     def killing(*args, **kwargs):
+        calls.append(None)
         for i, result in enumerate(original(*args, **kwargs)):
-            if i == 0:
-                victim[0].send_signal(signal.SIGKILL)
+            if i == 0 and calls != [None, None]:  # (not while the render's maps are found)
+                victims.pop(0).send_signal(signal.SIGKILL)
             yield result
 
     monkeypatch.setattr(cluster, "in_order", killing)
-    with _cluster(tmp_path / "logs", nanny=False) as (address, (scheduler_, worker, _)):
-        victim.append(worker)
+    with _cluster(tmp_path / "logs", nanny=False, workers=3) as (address, (scheduler_, *workers)):
+        victims.extend(workers[:2])
         status, err = run(capsys, *SIMULATE, "--scheduler", address, "--out", str(tmp_path / "k"))
         assert status == 0, err
         for name in ("trials.csv", "observers.csv"):
             assert (tmp_path / "k" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()
-        victim[0] = scheduler_
+        render = tmp_path / "render_killed"
+        status, err = run(capsys, *RENDER, "--scheduler", address, "--out", str(render))
+        assert status == 0, err
+        assert [w.poll() for w in workers] == [-signal.SIGKILL, -signal.SIGKILL, None]
+        _assert_renders_alike(tmp_path / "render_one", render)
+        victims.append(scheduler_)
         out = tmp_path / "lost"
         status, err = run(capsys, *SIMULATE, "--scheduler", address, "--out", str(out))
         assert_one_line_error(status, err, f"--scheduler {address}: the Dask scheduler was lost")

@@ -10,7 +10,14 @@ import numpy as np
 
 from jaxadapt.cli import _replay
 from jaxadapt.cli._frames import FrameOutputs
-from jaxadapt.cli._options import COMMANDS, FPS_RANGE, MP4_MIN_FPS, UsageError
+from jaxadapt.cli._options import (
+    CLUSTER_OPTIONS,
+    COMMANDS,
+    FPS_RANGE,
+    MP4_MIN_FPS,
+    UsageError,
+    check_cluster_options,
+)
 from jaxadapt.cli._output import _report, _video_and_progress
 from jaxadapt.cli._render_options import (
     _OUTPUT_OPTIONS,
@@ -21,6 +28,7 @@ from jaxadapt.cli._render_options import (
     _input_options,
     _operator_options,
 )
+from jaxadapt.cli._shards import Work, in_shards, joined_parts
 from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 __all__ = [
@@ -48,6 +56,7 @@ def add_parser(sub):
         *_operator_options(),
         *_adaptation_options(),
         *_OUTPUT_OPTIONS,
+        *CLUSTER_OPTIONS,
     ):
         parser.add_argument(*flags, **kwargs)
     parser.set_defaults(run=render)
@@ -266,9 +275,15 @@ def render(args, console):
     behind, then the diagnostics, sheet and plot."""
     import jax
 
-    from jaxadapt import io, pipeline
+    from jaxadapt import cluster, io, pipeline
 
+    check_cluster_options(args)
     if args.replay is not None:
+        if args.scheduler is not None or args.workers is not None:
+            option = "--scheduler" if args.scheduler is not None else "--workers"
+            raise UsageError(
+                f"{option}: a replay writes the frames it recorded; nothing to compute"
+            )
         options = (*_input_options(), *_operator_options(), *_adaptation_options())
         _replay.check(args, (*options, *_OUTPUT_OPTIONS))
         _replay.render(args, console)
@@ -281,17 +296,22 @@ def render(args, console):
         if not args.allow_large:  # once --out is known to be writable
             frames_from = "FILE" if args.files else "--fps, --duration"
             _check_work(T, source.shape, formats, out, frames_from)
-        with contextlib.ExitStack() as stack:
+        video = (source.times, args.files[0]) if _is_video(args.files) else None
+        codec = args.video_codec or "h264"
+        with (
+            contextlib.ExitStack() as stack,
+            cluster.connected(args.scheduler, args.workers) as client,
+        ):
             send_video, advance = _video_and_progress(
                 stack,
                 staging,
-                formats,
+                formats if client is None else [f for f in formats if f != "mp4"],
                 fps,
                 plan.encoding,
                 console,
                 (f"rendering {source.name}", T),
-                video=(source.times, args.files[0]) if _is_video(args.files) else None,
-                codec=args.video_codec or "h264",
+                video=video,
+                codec=codec,
             )
             write = FrameOutputs(
                 staging,
@@ -304,11 +324,25 @@ def render(args, console):
             )
             key = jax.random.key(args.seed or 0)
             budget = args.memory or pipeline.MEMORY_BUDGET
-            stream = pipeline.chunks(plan.op, plan.params, source, args.chunk, key, budget=budget)
-            with contextlib.closing(stream), pipeline.behind(write) as submit:
-                for idx, linear, table in stream:
-                    submit((idx, linear))
-                    tables.append(table)
+            if client is None:
+                stream = pipeline.chunks(
+                    plan.op, plan.params, source, args.chunk, key, budget=budget
+                )
+                with contextlib.closing(stream), pipeline.behind(write) as submit:
+                    for idx, linear, table in stream:
+                        submit((idx, linear))
+                        tables.append(table)
+            else:
+                times = video[0] if video else None
+                work = Work(plan, staging, key, args.chunk, budget, times, codec)
+                option = "--scheduler" if args.scheduler is not None else "--workers"
+                bounds = cluster.shard_bounds(T, cluster.workers_of(client))
+                for shard in in_shards(client, work, bounds, args.operator, option):
+                    tables.append(shard.table)
+                    write.kept.update(shard.kept)
+                    advance(len(shard.table["t"]))
+        if client is not None and "mp4" in formats:
+            joined_parts(staging, [start for start, _ in bounds], fps, video)
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)

@@ -1,0 +1,128 @@
+"""A render split in time on a Dask cluster (``render --scheduler``,
+``--workers``): each shard of frames rendered by a worker into the staging
+folder, from the state the viewer is in at its first frame; the video's
+parts joined at the end (:mod:`jaxadapt.cluster` cuts and sends the work)."""
+
+import contextlib
+from typing import Any, NamedTuple
+
+from jaxadapt.cli._frames import FrameOutputs
+
+#: The folder, in the staging folder, of a video's parts rendered on a cluster.
+VIDEO_PARTS = "video_parts"
+
+
+class Work(NamedTuple):
+    """What every shard of a render on a cluster shares: the render's
+    :class:`~jaxadapt.cli.render.Plan`, the staging folder (on storage the
+    workers reach), the sequence's key, the chunk and memory options, the
+    frame times of a video input (None for frames counted at the plan's
+    rate) and the video codec."""
+
+    plan: Any
+    staging: Any
+    key: Any
+    chunk: Any
+    budget: int
+    times: Any
+    codec: str
+
+
+class Shard(NamedTuple):
+    """What a shard hands back: its diagnostics columns, the frames it kept
+    for the contact sheet (:class:`~jaxadapt.cli._frames.FrameOutputs`)
+    and the operator's state after its last frame."""
+
+    table: dict
+    kept: dict
+    state: Any
+
+
+def in_shards(client, work, bounds, name, option):
+    """The :class:`Shard` results of a render split in time into ``bounds``
+    (``(start, stop)`` each) over the cluster of ``client``, in order: each
+    shard started from its exact state (:func:`jaxadapt.cluster.shard_states`)
+    where operator ``name`` composes, independent shards for one without
+    state, else the state handed from shard to shard
+    (:func:`jaxadapt.cluster.handed_on`). Errors name ``option``."""
+    from jaxadapt import cluster
+    from jaxadapt.operators import OPERATORS
+
+    plan, supports = work.plan, OPERATORS.supports(name)
+    if supports.time_dependent and not supports.composable:
+        return cluster.handed_on(client, _render_shard, (work,), bounds, option)
+    if supports.time_dependent:
+        args = (plan.op, plan.params, plan.source, bounds, work.key, work.budget, option)
+        states = cluster.shard_states(client, *args)
+    else:
+        states = [None] * len(bounds)
+    items = [(bounds_k, state) for bounds_k, state in zip(bounds, states, strict=True)]
+    return cluster.in_order(client, _render_from, (work,), items, option)
+
+
+def _render_from(work, item):
+    """A shard ``((start, stop), state)`` rendered from ``state``."""
+    bounds, state = item
+    return _render_shard(work, bounds, Shard(None, None, state))
+
+
+def _render_shard(work, bounds, previous):
+    """A task on a worker: frames ``start`` to ``stop - 1`` of the plan of
+    ``work`` rendered from the state ``previous`` ended in (the operator's
+    ``init`` for None), its frame files and its part of the video written
+    into the staging folder; its :class:`Shard` (its state's arrays on the
+    host, so that the table's columns keep their order)."""
+    from jaxadapt import cluster, io, pipeline
+
+    (start, stop), plan = bounds, work.plan
+    source = pipeline.part(plan.source, start, stop)
+    state, tables = previous and previous.state, []
+    with contextlib.ExitStack() as stack:
+        send_video = _ignored
+        if "mp4" in plan.formats:
+            (work.staging / VIDEO_PARTS).mkdir(exist_ok=True)
+            path = work.staging / VIDEO_PARTS / _part_name(start)
+            coding = (plan.fps, plan.encoding, work.times, None, work.codec)
+            send_video = stack.enter_context(io.video_writer(path, *coding, first=start))
+        coding = (plan.encoding, plan.encoded)
+        write = FrameOutputs(
+            work.staging, plan.formats, plan.source.times, plan.fps, coding, send_video, _ignored
+        )
+        stream = pipeline.chunks(
+            plan.op, plan.params, source, work.chunk, work.key, budget=work.budget, state=state
+        )
+        with contextlib.closing(stream), pipeline.behind(write) as submit:
+            while True:
+                try:
+                    idx, linear, table = next(stream)
+                except StopIteration as end:
+                    state = end.value
+                    break
+                submit((idx + start, linear))
+                tables.append(table)
+    return Shard(pipeline.concatenate(tables), write.kept, cluster.on_host(state))
+
+
+def _ignored(*_):
+    """What a shard does not do: send frames to the command's video, say
+    its progress (the command says it as each shard comes back)."""
+
+
+def _part_name(start):
+    """The name of the video's part whose first frame is ``start``."""
+    return f"{start:010d}.mp4"
+
+
+def joined_parts(staging, starts, fps, video):
+    """``video.mp4`` of the parts the shards starting at frames ``starts``
+    wrote (:data:`VIDEO_PARTS`) at ``fps``, with the frame times, audio and subtitles of ``video``
+    (``(times, path)`` of a video input, or None); the parts then removed."""
+    import shutil
+
+    from jaxadapt import io
+
+    folder = staging / VIDEO_PARTS
+    parts = [(start, folder / _part_name(start)) for start in starts]
+    times, copy_from = video or (None, None)
+    io.joined_video(staging / "video.mp4", parts, fps, times, copy_from)
+    shutil.rmtree(folder)
