@@ -212,6 +212,17 @@ def test_render_on_a_cluster_equals_one_process(tmp_path, capsys, scheduler, mon
         _assert_renders_alike(one, other, exact)
 
 
+def test_what_killed_shards_left_half_written_is_removed(tmp_path):
+    # A worker killed while it writes a frame leaves its atomic writer's
+    # temporary file (this name, in one run of the test below): not an output.
+    from jaxadapt.cli._shards import tidied
+
+    (tmp_path / ".frame_00016.z738w4qp.png").write_bytes(b"half")
+    (tmp_path / "frame_00015.png").write_bytes(b"whole")
+    tidied(tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["frame_00015.png"]
+
+
 def test_a_cluster_that_cannot_be_reached_is_one_line(tmp_path, capsys, monkeypatch):
     from jaxadapt import cluster
 

@@ -103,6 +103,16 @@ def _render_shard(work, bounds, previous):
     return Shard(pipeline.concatenate(tables), write.kept, cluster.on_host(state))
 
 
+def tidied(staging):
+    """Remove from the staging folder what the tasks of killed workers left
+    half-written: the temporary files of the atomic writers
+    (:func:`jaxadapt.io.atomic_path`, hidden names), whose shards Dask ran
+    again in full elsewhere."""
+    for path in staging.glob(".*"):
+        if path.is_file():
+            path.unlink()
+
+
 def _ignored(*_):
     """What a shard does not do: send frames to the command's video, say
     its progress (the command says it as each shard comes back)."""

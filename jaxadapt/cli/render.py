@@ -28,7 +28,7 @@ from jaxadapt.cli._render_options import (
     _input_options,
     _operator_options,
 )
-from jaxadapt.cli._shards import Work, in_shards, joined_parts
+from jaxadapt.cli._shards import Work, in_shards, joined_parts, tidied
 from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
 
 __all__ = [
@@ -341,8 +341,10 @@ def render(args, console):
                     tables.append(shard.table)
                     write.kept.update(shard.kept)
                     advance(len(shard.table["t"]))
-        if client is not None and "mp4" in formats:
-            joined_parts(staging, [start for start, _ in bounds], fps, video)
+        if client is not None:
+            tidied(staging)
+            if "mp4" in formats:
+                joined_parts(staging, [start for start, _ in bounds], fps, video)
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
