@@ -294,10 +294,11 @@ def from_video(path, transfer=None, primaries=None, hlg_peak=None, multiplier=1.
 
 
 class _VideoFrames:
-    """``frames(idx)`` of a video (:func:`from_video`): decoded in order, from
-    where the last call stopped, or from the start for frames before it
-    (a render reads forwards). Pickled without its decoder (a shard of a
-    render on a cluster opens its own)."""
+    """``frames(idx)`` of a video (:func:`from_video`): decoded in order from
+    where the last call stopped, or from the key frame before ``idx[0]``
+    (a render reads forwards; a shard of one split in time starts
+    anywhere). Pickled without its decoder (a shard on a cluster's worker
+    opens its own)."""
 
     def __init__(self, info, hlg_peak, whole, multiplier, total):
         self.info, self.hlg_peak, self.whole = info, hlg_peak, whole
@@ -307,18 +308,17 @@ class _VideoFrames:
     def __getstate__(self):
         return {**self.__dict__, "decoder": None, "at": 0}
 
-    def _decoded(self):
-        chunks = io.read_video(self.info, hlg_peak=self.hlg_peak, cut_short=not self.whole)
+    def _decoded(self, first):
+        chunks = io.read_video(
+            self.info, hlg_peak=self.hlg_peak, cut_short=not self.whole, first=first
+        )
         for _, chunk in chunks:
             yield from chunk
 
     def __call__(self, idx):
         idx = np.asarray(idx)
         if self.decoder is None or idx[0] != self.at:  # (first, or not in order)
-            self.decoder, self.at = self._decoded(), 0
-            for _ in range(int(idx[0])):
-                next(self.decoder, None)
-            self.at = int(idx[0])
+            self.decoder, self.at = self._decoded(int(idx[0])), int(idx[0])
         out = []
         for i in idx:
             frame = next(self.decoder, None)

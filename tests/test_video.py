@@ -197,6 +197,45 @@ def test_variable_frame_rate_keeps_each_frame_s_time(tmp_path):
     np.testing.assert_allclose(shown, seconds, atol=1e-4)
 
 
+def test_frames_from_the_middle_are_those_of_the_whole(tmp_path):
+    # An H.264 clip with a key frame every 8 frames and B-frames between
+    # (frames reordered): read from frame k (seeking to the key frame
+    # before it), or asked for by a source out of order, the frames are
+    # those of the whole file, at the same times.
+    import fractions
+
+    import av
+
+    path = tmp_path / "gop.mp4"
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=24)
+        stream.width, stream.height, stream.pix_fmt = W, H, "yuv420p"
+        stream.codec_context.gop_size = 8
+        stream.codec_context.options = {"bf": "2", "crf": "30"}
+        for i in range(30):
+            frame = av.VideoFrame.from_ndarray(np.full((H, W, 3), 8 * i, np.uint8), "rgb24")
+            frame.pts, frame.time_base = i, fractions.Fraction(1, 24)
+            out.mux(stream.encode(frame))
+        out.mux(stream.encode())
+    with av.open(str(path)) as container:
+        keys = [p.pts for p in container.demux(video=0) if p.is_keyframe]
+        assert len(keys) > 3
+    info = io.probe_video(path, transfer="bt709")
+
+    def read(first):
+        chunks = list(io.read_video(info, chunk=4, first=first))
+        return np.concatenate([t for t, _ in chunks]), np.concatenate([f for _, f in chunks])
+
+    times, frames = read(0)
+    for k in (1, 8, 13, 29):
+        t, f = read(k)
+        np.testing.assert_array_equal(t, times[k:])
+        np.testing.assert_array_equal(f, frames[k:])
+    source = pipeline.from_video(path, transfer="bt709")
+    np.testing.assert_array_equal(source.frames(np.arange(20, 23)), frames[20:23])
+    np.testing.assert_array_equal(source.frames(np.arange(5, 7)), frames[5:7])
+
+
 @pytest.mark.parametrize("timed", [False, True], ids=["at-a-rate", "stamped"])
 def test_a_video_written_in_parts_and_joined_is_the_whole(tmp_path, timed):
     # Frames counted at 24/s, or stamped at irregular times (a video

@@ -468,8 +468,9 @@ def _decoded(y, cb, cr, to_rgb, offset, gamut, hlg_peak, white, transfer):
     return jnp.stack([jnp.maximum(c, 0.0) for c in _mixed(gamut, light)], axis=-1)
 
 
-def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE, cut_short=False):
-    """Yield the frames of the video ``info`` describes, ``chunk`` at a time.
+def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE, cut_short=False, first=0):
+    """Yield the frames of the video ``info`` describes, ``chunk`` at a time,
+    from frame number ``first`` on (in presentation order).
 
     Yields
     ------
@@ -491,6 +492,10 @@ def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE, cut_short=Fals
         The file ends before the frames its index announces
         (:func:`video_times`): the frames that decode are yielded, those
         of :func:`video_times` with ``cut_short=True``.
+    first : int
+        The first frame yielded (a shard of a render split in time): the
+        decoder seeks to the key frame at or before it and drops the frames
+        before it (in a file cut short, it decodes them from the start).
 
     Raises
     ------
@@ -504,18 +509,26 @@ def read_video(info, chunk=8, hlg_peak=HLG_PEAK, white=SDR_WHITE, cut_short=Fals
     container = _open(info.path)
     try:
         stream = container.streams.video[0]
-        planes, times, first = [], [], None
-        n = 0
+        planes, times, origin, target, n = [], [], None, None, 0
+        if first and not cut_short:  # (the stamps demuxed: packets, not pictures)
+            stamps = np.unique([p.pts for p in container.demux(stream) if p.pts is not None])
+            origin, target, n = float(stamps[0] * stream.time_base), int(stamps[first]), first
+            container.seek(target, stream=stream, backward=True)
         try:
             for frame in _video_frames(container, stream, cut_short):
+                if target is not None and frame.pts is not None and frame.pts < target:
+                    continue  # (decoded from the key frame before the first asked for)
+                t = float(frame.time) if frame.time is not None else n / info.fps
+                origin = t if origin is None else origin
+                if n < first:  # (a file cut short: decoded from its start)
+                    n += 1
+                    continue
                 if frame.width != info.width or frame.height != info.height:
                     raise ValueError(
                         f"{info.path}, frame {n}: expected {info.width}x{info.height}, got "
                         f"{frame.width}x{frame.height} (a video whose size changes)"
                     )
-                t = float(frame.time) if frame.time is not None else n / info.fps
-                first = t if first is None else first
-                times.append(t - first)
+                times.append(t - origin)
                 planes.append(_planes(frame, info.bits))
                 n += 1
                 if len(planes) == chunk:
