@@ -77,6 +77,32 @@ def task_overhead(samples=200):
     return statistics.median(times)
 
 
+#: The film of the render's model: two hours at 24 frames/s.
+FILM_FRAMES = 2 * 3600 * 24
+
+
+def models(record):
+    """Add to ``record`` the modelled times on 16 and 64 hosts (one worker
+    each) of its simulation, ``2 start + work / H + 2 H overhead`` (two
+    tasks a worker), and of a film of :data:`FILM_FRAMES` frames of the
+    render's size, ``2 start + frames x per-frame work / H + 4 H overhead``
+    (four shards a worker), the per-frame work the one-process render's
+    time less its start over its frames."""
+    sim, render, overhead = record["simulate"], record["render"], record["task_overhead_s"]
+    per_frame = (render["one_process_s"] - render["start_s"]) / render["frames"]
+    record["simulate_model_s"], record["render_model_s"] = {}, {"film_frames": FILM_FRAMES}
+    for hosts in (16, 64):
+        record["simulate_model_s"][f"{hosts}_hosts"] = (
+            2 * sim["start_s"]
+            + (sim["one_process_s"] - sim["start_s"]) / hosts
+            + 2 * hosts * overhead
+        )
+        record["render_model_s"][f"{hosts}_hosts"] = (
+            2 * render["start_s"] + FILM_FRAMES * per_frame / hosts + 4 * hosts * overhead
+        )
+    record["render_model_s"]["1_host"] = render["start_s"] + FILM_FRAMES * per_frame
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--observers", type=int, default=2000)
@@ -113,20 +139,11 @@ def main():
             row[f"workers_{n}_s"], row[f"workers_{n}_peak_rss_bytes"] = wall, peak
         print(name, row, flush=True)
     record["task_overhead_s"] = task_overhead()
-    # (two tasks a worker for a simulation, four shards for a render; one worker a host)
-    for name, per_worker in (("simulate", 2), ("render", 4)):
-        row = record[name]
-        work = row["one_process_s"] - row["start_s"]
-        record[f"{name}_model_s"] = {
-            f"{hosts}_hosts": 2 * row["start_s"]
-            + work / hosts
-            + per_worker * hosts * record["task_overhead_s"]
-            for hosts in (16, 64)
-        }
-        print(name, record[f"{name}_model_s"])
     frames = round(args.seconds * 30)
     record["render"]["frames"] = frames
     record["render"]["one_process_ms_per_frame"] = 1e3 * record["render"]["one_process_s"] / frames
+    models(record)
+    print(record["simulate_model_s"], record["render_model_s"])
     from common import machine, write_result
 
     record["machine"] = machine(args.label)
