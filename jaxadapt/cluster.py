@@ -141,7 +141,8 @@ def _x64():
 def _gathered(client, submit, items, option):
     """The results of ``submit(item)`` (a future) of each of ``items``, in
     order, a few per worker in flight; a lost scheduler or a task whose
-    workers kept dying as an OSError naming ``option``."""
+    workers kept dying as an OSError naming ``option``, a task's own error
+    (a file a worker cannot read) as it was raised there."""
     distributed = _distributed(option)
     lost = (
         OSError,
@@ -157,11 +158,17 @@ def _gathered(client, submit, items, option):
     futures = collections.deque(map(submit, itertools.islice(items, AHEAD_PER_WORKER * workers)))
     try:
         while futures:
-            result = futures.popleft().result()
+            future = futures.popleft()
+            try:
+                result = future.result()
+            except lost as error:
+                if future.status == "error":  # (the task's own, a missing file: as it is)
+                    raise
+                raise OSError(
+                    f"{option}: the Dask scheduler was lost ({type(error).__name__})"
+                ) from None
             futures.extend(map(submit, itertools.islice(items, 1)))
             yield result
-    except lost as error:
-        raise OSError(f"{option}: the Dask scheduler was lost ({type(error).__name__})") from None
     except distributed.KilledWorker:
         raise OSError(f"{option}: a task's workers kept dying; the cluster gave up on it") from None
     finally:

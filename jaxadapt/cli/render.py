@@ -4,6 +4,7 @@ streamed to display frames, a video, a contact sheet, a plot and
 
 import contextlib
 import re
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -288,6 +289,9 @@ def render(args, console):
         _replay.check(args, (*options, *_OUTPUT_OPTIONS))
         _replay.render(args, console)
         return
+    if args.scheduler is not None or args.workers is not None:
+        # (the workers open the files themselves, from another working folder)
+        args.files = [Path(f).absolute() for f in args.files]
     plan = _planned(args, console)
     source, formats, fps = plan.source, plan.formats, plan.fps
     out, T, tables = args.out, len(source.times), []
