@@ -98,7 +98,9 @@ def connected(scheduler=None, workers=None):
                     threads_per_worker=1,
                     processes=True,  # (spawned: each its own JAX and XLA threads)
                     dashboard_address=None,
-                    silence_logs=logging.ERROR,
+                    # (a task's error is said by the command in its one line, not
+                    # as the worker's log with its traceback)
+                    silence_logs=logging.CRITICAL,
                     # this process's default precision, set before the workers import JAX
                     env={"JAX_ENABLE_X64": str(bool(jax.config.jax_enable_x64))},
                 )

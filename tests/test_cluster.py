@@ -225,6 +225,21 @@ def test_what_killed_shards_left_half_written_is_removed(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["frame_00015.png"]
 
 
+def test_a_task_s_error_is_the_command_s_one_line(tmp_path, capfd):
+    # A frame a worker finds bad: its error as the command's one line, the
+    # worker's own log of it (and its traceback) not on the terminal the
+    # embedded cluster shares (capfd: the workers' stderr too).
+    from jaxadapt import io
+
+    frames = [tmp_path / f"f{i}.exr" for i in range(2)]
+    for i, path in enumerate(frames):
+        io.write_image(path, np.full((8, 8, 3), np.nan if i else 1.0, np.float32))
+    out = tmp_path / "out"
+    status, err = run(capfd, "render", *map(str, frames), "--workers", "1", "--out", str(out))
+    assert_one_line_error(status, err, "f1.exr: expected finite, non-negative values")
+    assert not out.exists()
+
+
 def test_a_cluster_that_cannot_be_reached_is_one_line(tmp_path, capsys, monkeypatch):
     from jaxadapt import cluster
 
