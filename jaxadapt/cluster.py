@@ -97,7 +97,9 @@ def connected(scheduler=None, workers=None):
                     n_workers=workers,
                     threads_per_worker=1,
                     processes=True,  # (spawned: each its own JAX and XLA threads)
-                    dashboard_address=None,
+                    # (its HTTP server on a free port: None still takes 8787, and a
+                    # second run at once warned that the port was in use)
+                    dashboard_address=":0",
                     # (a task's error is said by the command in its one line, not
                     # as the worker's log with its traceback)
                     silence_logs=logging.CRITICAL,
