@@ -29,6 +29,7 @@ import numpy as np
 from jaxadapt import io, runtime
 from jaxadapt._checks import check_value, check_whole
 from jaxadapt.io import frame_rate, hdr_size, read_hdr
+from jaxadapt.physiology import kinetics
 
 __all__ = [
     "FILE_PIXELS_PER_DEGREE",
@@ -45,7 +46,6 @@ __all__ = [
     "part",
     "chunks",
     "transition",
-    "then",
     "ahead",
     "behind",
     "concatenate",
@@ -408,18 +408,16 @@ def transition(op, params, source, size=None, *, budget=MEMORY_BUDGET):
         for idx, frames, gaze in frames_ahead:
             dt = jnp.asarray(source.dt[idx], jnp.float32)
             step = op.transition(params, frames, dt, gaze=gaze)
-            ab = step if ab is None else then(ab, step)
+            ab = step if ab is None else _then(ab, step)
     return ab
 
 
-def then(first, second):
-    """The affine map ``(a, b)`` of ``first`` and then ``second``, two maps
-    ``(a, b)`` of an operator's state (``state -> a * state + b``, field by
-    field): ``(a2 a1, a2 b1 + b2)``."""
-    (a1, b1), (a2, b2) = first, second
-    return jax.tree.map(lambda x, y: x * y, a2, a1), jax.tree.map(
-        lambda x, y, z: x * y + z, a2, b1, b2
-    )
+def _then(first, second):
+    """:func:`~jaxadapt.physiology.kinetics.then` of two maps ``(a, b)`` of
+    an operator's state, field by field."""
+    pairs = jax.tree.map(lambda *x: kinetics.then(x[:2], x[2:]), *first, *second)
+    state, pair = jax.tree.structure(first[0]), jax.tree.structure((0, 0))
+    return tuple(jax.tree.transpose(state, pair, pairs))
 
 
 def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET, state=None):

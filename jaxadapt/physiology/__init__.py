@@ -43,6 +43,7 @@ from jaxadapt.physiology.kinetics import (
     relaxation_sequence,
     relaxation_sequences,
     relaxation_step,
+    then,
 )
 from jaxadapt.physiology.pupil import (
     DE_GROOT_GEBHARD_DARK,
@@ -101,6 +102,7 @@ __all__ = [
     "calcium_rhs",
     "calcium_step",
     "composed",
+    "then",
     "cone_bleaching",
     "cone_bleaching_rhs",
     "cone_bleaching_step",

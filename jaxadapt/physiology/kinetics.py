@@ -41,6 +41,7 @@ __all__ = [
     "relaxation_rhs",
     "affine_step",
     "affine_sequence",
+    "then",
     "composed",
     "relaxation_step",
     "relaxation_sequence",
@@ -97,6 +98,14 @@ def affine_step(relaxation, dt):
     return jnp.exp(-x), -jnp.expm1(-x) * relaxation.target
 
 
+def then(first, second):
+    """The affine map of ``first`` and then ``second``, each ``(a, b)`` of
+    ``y -> a y + b``: ``(a2 a1, a2 b1 + b2)``; associative, so steps compose
+    in any grouping."""
+    (a1, b1), (a2, b2) = first, second
+    return a2 * a1, a2 * b1 + b2
+
+
 def composed(a, b):
     """The one affine map ``y -> A y + B`` of the maps ``y -> a_k y + b_k``
     applied in turn (leading axis ``k``): what a stretch of steps does to
@@ -104,14 +113,11 @@ def composed(a, b):
     state after the stretch is ``A y0 + B``). Folded in order, as
     :func:`affine_sequence` steps on the CPU."""
 
-    def then(AB, ab):
-        return (ab[0] * AB[0], ab[0] * AB[1] + ab[1]), None
-
     dtype = jnp.result_type(a, b)
     shape = jnp.broadcast_shapes(jnp.shape(a), jnp.shape(b))
     a, b = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (a, b))
     one = (jnp.ones(shape[1:], dtype), jnp.zeros(shape[1:], dtype))
-    return jax.lax.scan(then, one, (a, b))[0]
+    return jax.lax.scan(lambda AB, ab: (then(AB, ab), None), one, (a, b))[0]
 
 
 def relaxation_step(y, relaxation, dt):
@@ -234,12 +240,8 @@ def _prefix_states(y0, a, b):
 
 def _prefix_states_associative(y0, a, b):
     """:func:`_prefix_states` by the associative scan of the compositions
-    ``(a2, b2) o (a1, b1) = (a2 a1, a2 b1 + b2)``."""
-
-    def compose(first, then):
-        return then[0] * first[0], then[0] * first[1] + then[1]
-
-    A, B = jax.lax.associative_scan(compose, (a, b))
+    (:func:`then`)."""
+    A, B = jax.lax.associative_scan(then, (a, b))
     return jnp.concatenate([y0[None], A * y0 + B])
 
 
