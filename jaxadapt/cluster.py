@@ -23,6 +23,7 @@ __all__ = [
     "connected",
     "in_order",
     "handed_on",
+    "Baton",
     "workers_of",
     "shard_bounds",
     "shard_states",
@@ -34,6 +35,7 @@ import contextlib
 import functools
 import itertools
 import logging
+import time
 
 #: Seconds to wait for a scheduler to answer before the command gives up.
 CONNECT_TIMEOUT = 10.0
@@ -181,26 +183,140 @@ def _gathered(client, submit, items, option):
 
 
 def handed_on(client, function, args, items, option):
-    """``function(*args, item, previous)`` of each of ``items`` in turn on the
-    cluster of ``client``, ``previous`` the result of the item before
-    (None for the first), handed from worker to worker without passing
-    through here; the results yielded in order, as :func:`in_order`'s.
-    For work whose state flows from one item to the next (a render split
-    in time whose operator does not compose).
+    """``function(*args, item, baton)`` of each of ``items`` on the cluster of
+    ``client``, each taking what the one before it hands on with its
+    :class:`Baton`: for work whose state flows from one item to the next
+    (a render split in time whose operator does not compose). The tasks
+    run at once, each waiting for the state where it needs it, so that an
+    item's reading, decoding and writing overlap its neighbours' computing.
+    The results yielded in order, as :func:`in_order`'s.
 
     Raises
     ------
     OSError
-        As :func:`in_order`.
+        As :func:`in_order`; or a state handed on was lost with both the
+        workers that held it, after the task that handed it on had ended.
     """
-    previous = [None]
+    import uuid
 
-    def chained(item):  # (the task of the item before, a future Dask resolves)
-        future = client.submit(_run, function, _x64(), args, item, previous[0], pure=False)
-        previous[0] = future
-        return future
+    distributed = _distributed(option)
+    items, run = list(items), uuid.uuid4().hex
+    batons = [Baton(run, k, k == len(items) - 1) for k in range(len(items))]
+    task = functools.partial(_run, function, _x64(), args)
+    submitted = iter(batons)
 
-    yield from _gathered(client, chained, items, option)
+    def submit(item):
+        return client.submit(task, item, next(submitted), pure=False)
+
+    def forget(baton):  # (a state no longer needed: the task after its own has ended)
+        with contextlib.suppress(OSError, TimeoutError):  # (a lost scheduler: gone with it)
+            for name in baton.names():
+                distributed.Variable(name, client).delete()
+
+    try:
+        results = _gathered(client, submit, items, option)
+        for k, result in enumerate(results):
+            if k:
+                forget(batons[k - 1])
+            yield result
+    finally:
+        for baton in batons:
+            forget(baton)
+
+
+class Baton:
+    """What a task of :func:`handed_on` hands to the next: its state, in a
+    Dask ``Variable`` named for the run and the task that holds a future of
+    it (Dask sends it worker to worker).
+
+    The task takes the state of the one before with :meth:`taken` (None
+    for the first), waiting without holding its worker's thread, and hands
+    its own on with :meth:`hand_on` as soon as it has it, before it writes
+    its outputs. The state is kept on two workers (two copies, each its
+    own future): one lost, the next task (or its run again elsewhere)
+    takes it from the other. A task lost before it ended is run again
+    elsewhere, and hands the same state on.
+    """
+
+    #: Seconds between looks at a variable whose state was lost, until the
+    #: task run again hands it on again.
+    POLL = 0.1
+    #: Seconds a state may take to come from the worker that holds it.
+    TRANSFER = 60.0
+    #: The workers that hold each state handed on.
+    COPIES = 2
+
+    def __init__(self, run, index, last):
+        self.run, self.index, self.last = run, index, last
+
+    def names(self):
+        """The variables of this task's state's copies and of its end."""
+        copies = [f"state{i}" for i in range(self.COPIES)]
+        return tuple(f"{self.run}-{what}-{self.index}" for what in (*copies, "ended"))
+
+    def taken(self):
+        """The state the task before this one handed on (None for the first)."""
+        import distributed
+
+        if self.index == 0:
+            return None
+        *copies, ended = Baton(self.run, self.index - 1, False).names()
+        with _seceded():
+            while True:
+                futures = [distributed.Variable(copies[0]).get()]  # (waits until it is set)
+                for name in copies[1:]:
+                    with contextlib.suppress(TimeoutError):  # (not yet, or only one worker)
+                        futures.append(distributed.Variable(name).get(timeout=0))
+                for future in futures:
+                    if future.status != "lost":
+                        with contextlib.suppress(
+                            TimeoutError, distributed.client.FutureCancelledError
+                        ):
+                            return future.result(timeout=self.TRANSFER)
+                with contextlib.suppress(TimeoutError):  # (lost: its task ended, or runs again)
+                    distributed.Variable(ended).get(timeout=0)
+                    raise OSError(
+                        "a state handed on from task to task was lost with both "
+                        "the workers that held it: run again"
+                    )
+                time.sleep(self.POLL)
+
+    def hand_on(self, state):
+        """Hand ``state`` to the next task (nothing for the last): kept on
+        this worker, then copied to another (the next in address order)."""
+        import distributed
+
+        if self.last:
+            return
+        client, here = distributed.get_client(), distributed.get_worker().address
+        workers = sorted(client.scheduler_info(n_workers=-1)["workers"])
+        others = [w for w in workers if w > here] + [w for w in workers if w < here]
+        for name, holder in zip(self.names(), [here, *others][: self.COPIES], strict=False):
+            # (copies of their own, not replicas of one: Dask's memory manager
+            # drops the replicas that no task needs; in a list: a tuple's items
+            # would each be a future of their own)
+            (future,) = client.scatter([state], workers=[holder], hash=False)
+            distributed.Variable(name).set(future)
+
+    def ended(self):
+        """Say that this task has ended (a state lost since is not handed on again)."""
+        import distributed
+
+        if not self.last:
+            distributed.Variable(self.names()[-1]).set(True)
+
+
+@contextlib.contextmanager
+def _seceded():
+    """The block run outside the worker's pool of task threads, which may
+    start another task meanwhile (a wait for another task's value)."""
+    import distributed
+
+    distributed.secede()
+    try:
+        yield
+    finally:
+        distributed.rejoin()
 
 
 def workers_of(client):
@@ -215,7 +331,10 @@ def _run(function, x64, args, *item):
 
     _set_up()
     with jax.enable_x64(x64):
-        return on_host(function(*args, *item))
+        result = on_host(function(*args, *item))
+    if item and isinstance(item[-1], Baton):
+        item[-1].ended()
+    return result
 
 
 def on_host(tree):

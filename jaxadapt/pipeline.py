@@ -445,7 +445,9 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET, sta
         before freed memory is handed back (:class:`runtime.MemoryCeiling`).
     state : optional
         The operator's state at the first frame (a shard of a render split
-        in time); by default its ``init`` of the first frame.
+        in time), or a function that returns it, called once the first
+        chunk is read (a state that another process is still computing);
+        by default its ``init`` of the first frame.
 
     Yields
     ------
@@ -472,6 +474,8 @@ def chunks(op, params, source, size=None, key=None, *, budget=MEMORY_BUDGET, sta
     ceiling = runtime.MemoryCeiling(budget)
     with contextlib.closing(ahead(_read(source, size))) as frames_ahead:
         for idx, frames, gaze in frames_ahead:
+            if idx[0] == 0 and callable(state):
+                state = state()
             if idx[0] == 0 and state is None:  # (None too for an operator without one)
                 state = op.init(
                     params, frames[0], gaze=gaze[0], key=key, adaptation=source.adaptation

@@ -282,34 +282,42 @@ def test_a_worker_killed_changes_nothing_a_scheduler_lost_is_one_line(
 ):
     # A worker killed once the first result is in, the others in flight: in
     # a simulation, then in a render (its shards' maps found; its frames
-    # being rendered); then the scheduler.
+    # being rendered), then in a render whose shards hand their state on
+    # (the next shards waiting for it, or rendering from it); then the
+    # scheduler.
     from jaxadapt import cluster
 
     monkeypatch.setenv("XLA_FLAGS", THIS_PROCESS_XLA_FLAGS)
-    for argv, out in ((SIMULATE, "one"), (RENDER, "render_one")):
+    handing = [*RENDER, "--operator", "jacobs2015"]
+    for argv, out in ((SIMULATE, "one"), (RENDER, "render_one"), (handing, "handing_one")):
         status, err = run(capsys, *argv, "--out", str(tmp_path / out))
         assert status == 0, err
-    original, victims, calls = cluster.in_order, [], []
+    victims, calls = [], []
 
-    def killing(*args, **kwargs):
-        calls.append(None)
-        for i, result in enumerate(original(*args, **kwargs)):
-            if i == 0 and calls != [None, None]:  # (not while the render's maps are found)
-                victims.pop(0).send_signal(signal.SIGKILL)
-            yield result
+    def killing(original):
+        def sent(*args, **kwargs):
+            calls.append(None)
+            for i, result in enumerate(original(*args, **kwargs)):
+                if i == 0 and len(calls) != 2:  # (not while the render's maps are found)
+                    victims.pop(0).send_signal(signal.SIGKILL)
+                yield result
 
-    monkeypatch.setattr(cluster, "in_order", killing)
-    with _cluster(tmp_path / "logs", nanny=False, workers=3) as (address, (scheduler_, *workers)):
-        victims.extend(workers[:2])
+        return sent
+
+    for name in ("in_order", "handed_on"):
+        monkeypatch.setattr(cluster, name, killing(getattr(cluster, name)))
+    with _cluster(tmp_path / "logs", nanny=False, workers=4) as (address, (scheduler_, *workers)):
+        victims.extend(workers[:3])
         status, err = run(capsys, *SIMULATE, "--scheduler", address, "--out", str(tmp_path / "k"))
         assert status == 0, err
         for name in ("trials.csv", "observers.csv"):
             assert (tmp_path / "k" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()
-        render = tmp_path / "render_killed"
-        status, err = run(capsys, *RENDER, "--scheduler", address, "--out", str(render))
-        assert status == 0, err
-        assert [w.poll() for w in workers] == [-signal.SIGKILL, -signal.SIGKILL, None]
-        _assert_renders_alike(tmp_path / "render_one", render)
+        for argv, one in ((RENDER, "render_one"), (handing, "handing_one")):
+            render = tmp_path / f"{one}_killed"
+            status, err = run(capsys, *argv, "--scheduler", address, "--out", str(render))
+            assert status == 0, err
+            _assert_renders_alike(tmp_path / one, render)
+        assert [w.poll() for w in workers] == [-signal.SIGKILL] * 3 + [None]
         victims.append(scheduler_)
         out = tmp_path / "lost"
         status, err = run(capsys, *SIMULATE, "--scheduler", address, "--out", str(out))

@@ -50,7 +50,7 @@ def in_shards(client, work, bounds, name, option):
 
     plan, supports = work.plan, OPERATORS.supports(name)
     if supports.time_dependent and not supports.composable:
-        return cluster.handed_on(client, _render_shard, (work,), bounds, option)
+        return cluster.handed_on(client, _render_handed, (work,), bounds, option)
     if supports.time_dependent:
         args = (plan.op, plan.params, plan.source, bounds, work.key, work.budget, option)
         states = cluster.shard_states(client, *args)
@@ -60,23 +60,38 @@ def in_shards(client, work, bounds, name, option):
     return cluster.in_order(client, _render_from, (work,), items, option)
 
 
+def _ignored(*_):
+    """What a shard does not do: send frames to the command's video, say
+    its progress (the command says it as each shard comes back), hand its
+    state on (a shard whose state was found before it started)."""
+
+
 def _render_from(work, item):
     """A shard ``((start, stop), state)`` rendered from ``state``."""
     bounds, state = item
-    return _render_shard(work, bounds, Shard(None, None, state))
+    return _render_shard(work, bounds, state)
 
 
-def _render_shard(work, bounds, previous):
+def _render_handed(work, bounds, baton):
+    """A shard rendered from the state the shard before hands on
+    (:class:`jaxadapt.cluster.Baton`), its own handed on as soon as its
+    last frame is computed, while its last frames are still being written."""
+    return _render_shard(work, bounds, baton.taken, baton.hand_on)
+
+
+def _render_shard(work, bounds, state, hand_on=_ignored):
     """A task on a worker: frames ``start`` to ``stop - 1`` of the plan of
-    ``work`` rendered from the state ``previous`` ended in (the operator's
-    ``init`` for None), its frame files and its part of the video written
-    into the staging folder; its :class:`Shard` (its state's arrays on the
-    host, so that the table's columns keep their order)."""
+    ``work`` rendered from ``state`` (the operator's ``init`` for None; or
+    a function that returns it, called once the first frames are read),
+    its frame files and its part of the video written into the staging
+    folder; its :class:`Shard` (its state's arrays on the host, so that the
+    table's columns keep their order). ``hand_on`` takes the state after
+    the last frame as soon as it is computed."""
     from jaxadapt import cluster, io, pipeline
 
     (start, stop), plan = bounds, work.plan
     source = pipeline.part(plan.source, start, stop)
-    state, tables = previous and previous.state, []
+    tables = []
     with contextlib.ExitStack() as stack:
         send_video = _ignored
         if "mp4" in plan.formats:
@@ -97,6 +112,7 @@ def _render_shard(work, bounds, previous):
                     idx, linear, table = next(stream)
                 except StopIteration as end:
                     state = end.value
+                    hand_on(state)
                     break
                 submit((idx + start, linear))
                 tables.append(table)
@@ -111,11 +127,6 @@ def tidied(staging):
     for path in staging.glob(".*"):
         if path.is_file():
             path.unlink()
-
-
-def _ignored(*_):
-    """What a shard does not do: send frames to the command's video, say
-    its progress (the command says it as each shard comes back)."""
 
 
 def _part_name(start):
