@@ -11,7 +11,11 @@ memory is the command's own process's, its workers' not counted):
   ways;
 - ``jaxadapt render --duration D`` (the tunnel drive at its default size,
   30 frames/s, PNG frames and the video), the same ways: split in time
-  into shards of at least 16 frames, four a worker.
+  into shards of at least 16 frames, four a worker;
+- the same with ``--operator jacobs2015``, whose shards hand their state
+  on (they start at once, each reading its first frames and opening its
+  video while it waits for the state of the one before, and writing its
+  last while the next computes).
 
 Then, in this process, the cost of a task on a LocalCluster of two
 workers (the median round trip of an empty task, as ``in_order`` sends
@@ -27,7 +31,7 @@ not what it gains.
     python benchmarks/bench_cluster.py [--observers 2000] [--resamples 200] [--seconds 10]
         [--repeats 3]
 
-(recorded with ``--observers 500 --resamples 100 --seconds 10 --repeats 2``: 12 minutes)
+(recorded with ``--observers 500 --resamples 100 --seconds 10 --repeats 2``: 16 minutes)
 """
 
 import argparse
@@ -117,6 +121,7 @@ def main():
     run_processes([command(*simulate, args.observers, "--out", table)])
     fit = ["psychometric", "fit", table / "trials.csv", "--resamples", args.resamples]
     render = ["render", "--duration"]
+    handed_on = ["render", "--operator", "jacobs2015", "--duration"]
     record = {
         "observers": args.observers,
         "resamples": args.resamples,
@@ -127,6 +132,7 @@ def main():
         ("simulate", [*simulate, args.observers], [*simulate, 1]),
         ("fit", fit, None),
         ("render", [*render, args.seconds], [*render, 0.1]),
+        ("render_handed_on", [*handed_on, args.seconds], [*handed_on, 0.1]),
     ):
         row = record[name] = {}
         row["one_process_s"], row["one_process_peak_rss_bytes"] = timed(
@@ -140,8 +146,9 @@ def main():
         print(name, row, flush=True)
     record["task_overhead_s"] = task_overhead()
     frames = round(args.seconds * 30)
-    record["render"]["frames"] = frames
-    record["render"]["one_process_ms_per_frame"] = 1e3 * record["render"]["one_process_s"] / frames
+    for name in ("render", "render_handed_on"):
+        record[name]["frames"] = frames
+        record[name]["one_process_ms_per_frame"] = 1e3 * record[name]["one_process_s"] / frames
     models(record)
     print(record["simulate_model_s"], record["render_model_s"])
     from common import machine, write_result
