@@ -28,7 +28,7 @@ import numpy as np
 
 from jaxadapt import io, runtime
 from jaxadapt._checks import check_value, check_whole
-from jaxadapt.io import frame_rate, hdr_size, read_hdr
+from jaxadapt.io import frame_rate, hdr_size, is_url, read_hdr, url_name
 from jaxadapt.physiology import kinetics
 
 __all__ = [
@@ -185,7 +185,7 @@ def from_files(paths, fps=None, multiplier=1.0):
     paths : str, Path or a sequence of them
         EXR, Radiance HDR, PFM or float TIFF files (:func:`jaxadapt.io.read_hdr`):
         one (a still image; a single ``str`` is one path) or the frames of a
-        sequence.
+        sequence; local paths, or URLs (:func:`jaxadapt.io.is_url`).
     fps : float, optional
         Frame rate, frames per second; by default the first file's
         (:func:`files_rate`: its header's, else :data:`FILE_FPS`).
@@ -204,7 +204,8 @@ def from_files(paths, fps=None, multiplier=1.0):
         read, a frame whose pixel data are truncated or corrupt, or that
         holds negative, NaN or infinite values.
     """
-    paths = [Path(paths)] if isinstance(paths, (str, os.PathLike)) else [Path(p) for p in paths]
+    paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    paths = [p if is_url(p) else Path(p) for p in paths]
     if not paths:
         raise ValueError("paths: expected at least one HDR file, got none")
     fps = files_rate(paths) if fps is None else fps
@@ -222,9 +223,9 @@ def from_files(paths, fps=None, multiplier=1.0):
         return _calibrated(frame, multiplier, paths[i])
 
     centre = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
-    T = len(paths)
+    T, first = len(paths), url_name(paths[0])
     return Source(
-        paths[0].name if T == 1 else f"{paths[0].name} to {paths[-1].name} ({T} files)",
+        first if T == 1 else f"{first} to {url_name(paths[-1])} ({T} files)",
         np.arange(T) / fps,
         np.full(T, 1.0 / fps),
         lambda idx: np.stack([read(i) for i in idx]),

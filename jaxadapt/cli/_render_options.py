@@ -33,7 +33,8 @@ def _input_options():
                 metavar="FILE",
                 help="HDR input (EXR, Radiance HDR, PFM, float TIFF): one image, or the frames "
                 "of a sequence in order (e.g. a shell glob of a numbered sequence); or one "
-                "video (HDR10, HLG or SDR; MP4, MKV, MOV, ...), its frames timed by their stamps",
+                "video (HDR10, HLG or SDR; MP4, MKV, MOV, ...), its frames timed by their stamps; "
+                "local paths or URLs (s3://bucket/f_*.exr, read through fsspec)",
             ),
         ),
         (

@@ -289,9 +289,10 @@ def render(args, console):
         _replay.check(args, (*options, *_OUTPUT_OPTIONS))
         _replay.render(args, console)
         return
+    args.files = io.expanded(args.files)  # (a URL's glob: no shell expands it)
     if args.scheduler is not None or args.workers is not None:
         # (the workers open the files themselves, from another working folder)
-        args.files = [Path(f).absolute() for f in args.files]
+        args.files = [f if io.is_url(f) else Path(f).absolute() for f in args.files]
     plan = _planned(args, console)
     source, formats, fps = plan.source, plan.formats, plan.fps
     out, T, tables = args.out, len(source.times), []

@@ -1,5 +1,6 @@
 """Reading HDR frames and writing display frames, with OpenImageIO; reading
-HDR and SDR video with FFmpeg's libraries (PyAV).
+HDR and SDR video with FFmpeg's libraries (PyAV); input files named by
+URL (s3://, gs://, https://) through fsspec.
 
 Every writer writes to a temporary file beside its target and renames it
 into place, so an interrupted or failed run never leaves a half-written
@@ -16,6 +17,7 @@ from jaxadapt.io._headers import (
     rgb_channels,
 )
 from jaxadapt.io._read import frame_rate, hdr_size, read_hdr, to_bt709_gamut
+from jaxadapt.io._remote import expanded, is_url, url_name
 from jaxadapt.io._video import VIDEO_TRANSFERS, joined_video, video_writer
 from jaxadapt.io._video_read import (
     HLG_PEAK,
@@ -55,8 +57,10 @@ __all__ = [
     "bt709_matrix",
     "csv_writer",
     "display_window",
+    "expanded",
     "frame_rate",
     "hdr_size",
+    "is_url",
     "is_video",
     "probe_video",
     "radiance_exposure",
@@ -66,6 +70,7 @@ __all__ = [
     "reorient",
     "rgb_channels",
     "to_bt709_gamut",
+    "url_name",
     "video_times",
     "video_writer",
     "joined_video",

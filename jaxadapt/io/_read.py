@@ -3,11 +3,11 @@ rotated upright and converted to BT.709 primaries."""
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 
 from jaxadapt.io._headers import _hdr_image, _one_line, display_window, reorient
+from jaxadapt.io._remote import local_copy
 
 
 def read_hdr(path):
@@ -49,9 +49,8 @@ def read_hdr(path):
         finite values beyond float32's range (a TIFF of doubles can), or its
         header is invalid (channels, orientation, primaries, exposure).
     """
-    path = Path(path)
-    with _hdr_image(path) as (image, header):
-        pixels = _read_pfm(path) if image.format_name() == "pnm" else None
+    with local_copy(path) as local, _hdr_image(local) as (image, header):
+        pixels = _read_pfm(local) if image.format_name() == "pnm" else None
         if pixels is None:  # doubles as they are, so that _as_float32 sees them
             pixels = image.read_image(format="double" if _doubles(header) else "float")
         if pixels is None:
@@ -170,7 +169,7 @@ def hdr_size(path):
     orientation, primaries, Radiance exposure) and raises the same errors;
     pixel data that are truncated or corrupt are found only by reading them.
     """
-    with _hdr_image(Path(path)) as (_, header):
+    with local_copy(path) as local, _hdr_image(local) as (_, header):
         width, height = header.spec.full_width, header.spec.full_height
         return (height, width) if header.orientation > 4 else (width, height)
 
@@ -184,7 +183,7 @@ def frame_rate(path):
     ``ValueError`` naming the file for a rate that is not positive and
     finite (0/0, 30/0).
     """
-    with _hdr_image(Path(path)) as (_, header):
+    with local_copy(path) as local, _hdr_image(local) as (_, header):
         rate = header.spec.getattribute("FramesPerSecond")
     if rate is None:
         return None

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxadapt.io._remote import opened, url_name
 from jaxadapt.io._write import atomic_path
 
 #: FFmpeg's code (AVColorTransferCharacteristic) of each encoding's transfer
@@ -259,14 +260,14 @@ class _Copies:
             return
         import av
 
-        self.container = av.open(str(source))
+        self.container = av.open(opened(source))
         inputs = []
         for s in [*self.container.streams.audio, *self.container.streams.subtitles]:
             if s.codec_context.name in out.supported_codecs:
                 inputs.append(s)
             else:
                 warnings.warn(
-                    f"{Path(source).name}: its {s.type} stream {s.index} "
+                    f"{url_name(source)}: its {s.type} stream {s.index} "
                     f"({s.codec_context.name}) cannot go into an MP4; left out",
                     stacklevel=2,
                 )

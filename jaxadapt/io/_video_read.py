@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt.io._remote import is_url, opened
 from jaxadapt.physiology.response import power
 
 __all__ = [
@@ -137,11 +138,10 @@ def is_video(path):
 def _open(path):
     import av
 
-    path = Path(path)
-    if not path.is_file():
+    if not is_url(path) and not Path(path).is_file():
         raise FileNotFoundError(f"{path}: no such file")
     try:
-        container = av.open(str(path))
+        container = av.open(opened(path))
     except (av.error.InvalidDataError, av.error.FFmpegError) as error:
         raise ValueError(
             f"{path}: expected a video file, got one FFmpeg cannot read "
