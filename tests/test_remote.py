@@ -155,3 +155,51 @@ def test_urls_that_name_nothing_are_one_line(tmp_path, capsys, bucket, monkeypat
     status, err = run(capsys, "render", "s3://frames/bad.exr", "--out", str(out))
     assert_one_line_error(status, err, "s3://frames/bad.exr:")
     assert "jaxadapt-" not in err
+
+
+def test_a_render_into_a_url_equals_one_into_a_folder(tmp_path, capsys, bucket, monkeypatch):
+    # --out s3://frames/run: in this process (its files written here and
+    # put there once the run has succeeded), then on an embedded cluster
+    # (each shard's files put there by its worker once it is done; the
+    # video's parts joined by the command). A later run there removes what
+    # the earlier one wrote and it does not; a run that fails leaves the
+    # folder as it was; no staging folder is left either way.
+    from test_cluster import THIS_PROCESS_XLA_FLAGS, _assert_renders_alike
+
+    from jaxadapt import io
+
+    monkeypatch.setenv("XLA_FLAGS", THIS_PROCESS_XLA_FLAGS)
+    files = [str(f) for f in _frames(tmp_path / "frames", 40)]
+    formats = ["--format", "exr", "--format", "png", "--format", "mp4"]
+    argv = ["render", *files, "--fps", "12", *formats]
+    status, err = run(capsys, *argv, "--out", str(tmp_path / "local"))
+    assert status == 0, err
+
+    def listing(name):
+        return sorted(p.rsplit("/", 1)[1] for p in bucket.ls(f"frames/{name}", refresh=True))
+
+    for option, name in (([], "one"), (["--workers", "2"], "cluster")):
+        status, err = run(capsys, *argv, *option, "--out", f"s3://frames/{name}")
+        assert status == 0, err
+        got = tmp_path / f"got_{name}"
+        bucket.get(f"frames/{name}/", str(got), recursive=True)
+        _assert_renders_alike(tmp_path / "local", got)
+        assert [n for n in listing(name) if n.startswith(".jaxadapt-")] == [".jaxadapt-render"]
+    status, err = run(capsys, *argv[:-4], "--out", "s3://frames/one")  # (EXR frames only)
+    assert status == 0, err
+    names = listing("one")
+    assert not any(n.startswith("frame_") and n.endswith(".png") for n in names)
+    assert "video.mp4" not in names and "contact_sheet.png" in names
+    assert sum(n.endswith(".exr") for n in names) == 40
+    io.write_image(tmp_path / "nan.exr", np.full((32, 48, 3), np.nan, np.float32))
+    bad = ["render", *files, str(tmp_path / "nan.exr"), *argv[-8:]]
+    status, err = run(capsys, *bad, "--out", "s3://frames/one")
+    assert_one_line_error(status, err, "nan.exr")
+    assert listing("one") == names
+    # A staging folder that a failed run's worker wrote into after the run
+    # removed it: named in a warning, left alone.
+    bucket.pipe("frames/one/.jaxadapt-0123/frame_00000.exr", b"late")
+    status, err = run(capsys, *argv[:-4], "--out", "s3://frames/one")
+    assert status == 0, err
+    assert "warning: s3://frames/one holds .jaxadapt-0123: the staging folders" in err
+    assert ".jaxadapt-0123" in listing("one")

@@ -153,6 +153,14 @@ def _folder(text):
     return Path(text)
 
 
+def _folder_or_url(text):
+    """A folder, or a URL of one in object storage (``s3://bucket/run``: a
+    str, which a Path would mangle)."""
+    from jaxadapt.io import is_url
+
+    return text if is_url(text) else _folder(text)
+
+
 #: Factors of the suffixes ``--memory`` takes.
 _UNITS = {"": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from jaxadapt.cli._options import (
     UsageError,
     _default_sizes,
-    _folder,
+    _folder_or_url,
     _frame_rate,
     _memory,
     _pixels_per_degree,
@@ -230,9 +230,10 @@ _OUTPUT_OPTIONS = (
     (
         ("--out",),
         dict(
-            type=_folder,
+            type=_folder_or_url,
             default=Path("out"),
-            help="output folder (default: ./out); what an earlier render wrote there (listed "
+            help="output folder (default: ./out), or a URL of one (s3://bucket/run, written "
+            "through fsspec); what an earlier render wrote there (listed "
             "in its .jaxadapt-render) is replaced, and so is a file with the name of an output "
             "of this one; other files and the inputs are left alone",
         ),

@@ -92,16 +92,16 @@ def _render_shard(work, bounds, state, hand_on=_ignored):
     (start, stop), plan = bounds, work.plan
     source = pipeline.part(plan.source, start, stop)
     tables = []
-    with contextlib.ExitStack() as stack:
+    with _shard_folder(work.staging) as staging, contextlib.ExitStack() as stack:
         send_video = _ignored
         if "mp4" in plan.formats:
-            (work.staging / VIDEO_PARTS).mkdir(exist_ok=True)
-            path = work.staging / VIDEO_PARTS / _part_name(start)
+            (staging / VIDEO_PARTS).mkdir(exist_ok=True)
+            path = staging / VIDEO_PARTS / _part_name(start)
             coding = (plan.fps, plan.encoding, work.times, None, work.codec)
             send_video = stack.enter_context(io.video_writer(path, *coding, first=start))
         coding = (plan.encoding, plan.encoded)
         write = FrameOutputs(
-            work.staging, plan.formats, plan.source.times, plan.fps, coding, send_video, _ignored
+            staging, plan.formats, plan.source.times, plan.fps, coding, send_video, _ignored
         )
         stream = pipeline.chunks(
             plan.op, plan.params, source, work.chunk, work.key, budget=work.budget, state=state
@@ -119,6 +119,27 @@ def _render_shard(work, bounds, state, hand_on=_ignored):
     return Shard(pipeline.concatenate(tables), write.kept, cluster.on_host(state))
 
 
+@contextlib.contextmanager
+def _shard_folder(staging):
+    """The folder a shard writes its files into: the staging folder (on a
+    file system the workers share); for one at a URL (``--out`` in object
+    storage), a temporary folder of the worker's whose files are put there
+    once the shard has succeeded (a shard lost half-way puts nothing)."""
+    import tempfile
+    from pathlib import Path
+
+    from jaxadapt import io
+
+    if not io.is_url(staging):
+        yield staging
+        return
+    fs, shared = io.filesystem(staging)
+    with tempfile.TemporaryDirectory(prefix="jaxadapt-shard-") as folder:
+        yield Path(folder)
+        with io.url_errors(staging):
+            fs.put(f"{folder}/", f"{shared}/", recursive=True)
+
+
 def tidied(staging):
     """Remove from the staging folder what the tasks of killed workers left
     half-written: the temporary files of the atomic writers
@@ -134,16 +155,22 @@ def _part_name(start):
     return f"{start:010d}.mp4"
 
 
-def joined_parts(staging, starts, fps, video):
-    """``video.mp4`` of the parts the shards starting at frames ``starts``
-    wrote (:data:`VIDEO_PARTS`) at ``fps``, with the frame times, audio and subtitles of ``video``
-    (``(times, path)`` of a video input, or None); the parts then removed."""
+def joined_parts(staging, shared, starts, fps, video):
+    """``video.mp4`` in ``staging`` of the parts the shards starting at
+    frames ``starts`` wrote into ``shared`` (:data:`VIDEO_PARTS`; a
+    folder, or a URL) at ``fps``, with the frame times, audio and
+    subtitles of ``video`` (``(times, path)`` of a video input, or None);
+    the parts of a shared folder then removed (those at a URL go with its
+    staging folder)."""
     import shutil
 
     from jaxadapt import io
 
-    folder = staging / VIDEO_PARTS
-    parts = [(start, folder / _part_name(start)) for start in starts]
+    if io.is_url(shared):
+        parts = [(start, f"{shared}/{VIDEO_PARTS}/{_part_name(start)}") for start in starts]
+    else:
+        parts = [(start, shared / VIDEO_PARTS / _part_name(start)) for start in starts]
     times, copy_from = video or (None, None)
     io.joined_video(staging / "video.mp4", parts, fps, times, copy_from)
-    shutil.rmtree(folder)
+    if not io.is_url(shared):
+        shutil.rmtree(shared / VIDEO_PARTS)

@@ -105,6 +105,103 @@ def _staged(out, console, replaces=None, keep=()):
                 shutil.rmtree(staging, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def _staged_shared(out, console, replaces, keep=()):
+    """``(staging, shared)``: where the command writes its files, and where
+    the workers of a cluster write theirs. For a local ``out``, the one
+    staging folder of :func:`_staged` (on a file system the workers share);
+    for a URL, :func:`_published`'s two."""
+    from jaxadapt.io import is_url
+
+    if is_url(out):
+        with _published(out, console, replaces) as pair:
+            yield pair
+    else:
+        with _staged(out, console, replaces, keep) as staging:
+            yield staging, staging
+
+
+@contextlib.contextmanager
+def _published(url, console, replaces):
+    """For an ``--out`` that is a URL (:func:`jaxadapt.io.is_url`): yield
+    ``(staging, shared)``, a local staging folder for the command's own
+    files and a staging folder at ``url`` (a hidden name in it) for those
+    the workers of a cluster put there; on success, the files of both are
+    copied and moved to ``url``, with the manifest of ``replaces`` and the
+    removal of an earlier run's files as :func:`_staged` does. On any error
+    nothing reaches ``url``. Both staging folders are removed either way.
+    An object store has no rename of a folder: the files appear one by
+    one, each whole, once the run has succeeded. Staging folders at
+    ``url`` of other runs (still going, or failed while a worker still
+    wrote) are named in a warning on ``console``."""
+    import uuid
+
+    from jaxadapt import io
+
+    fs, root = io.filesystem(url)
+    root = root.rstrip("/")
+    shared = f"{root}/{STAGING_PREFIX}{uuid.uuid4().hex}"
+    with io.url_errors(url), contextlib.suppress(FileNotFoundError):
+        fs.invalidate_cache(root)  # (what other processes wrote since this one last looked)
+        found = fs.ls(root, detail=True)
+        left = sorted(
+            f["name"].rsplit("/", 1)[-1]
+            for f in found
+            if f["type"] == "directory" and f["name"].rsplit("/", 1)[-1].startswith(STAGING_PREFIX)
+        )
+        if left:
+            console.print(
+                f"warning: {url} holds {', '.join(left)}: the staging folders of runs that "
+                "failed while a worker still wrote (remove them) or are still running",
+                markup=False,
+                soft_wrap=True,
+            )
+    with tempfile.TemporaryDirectory(prefix="jaxadapt-out-") as staging:
+        try:
+            yield Path(staging), fs.unstrip_protocol(shared)
+            with _signals.signals_deferred(), io.url_errors(url):
+                _signals.raise_swallowed()
+                _publish(fs, Path(staging), shared, root, replaces)
+                _signals.WRITTEN.set()
+        finally:
+            with _signals.signals_deferred(), contextlib.suppress(Exception):
+                fs.rm(shared, recursive=True)
+
+
+def shared_names(fs, shared):
+    """``{name: path}`` of the files directly in the folder ``shared`` of
+    filesystem ``fs`` (none where it does not exist)."""
+    from pathlib import PurePosixPath
+
+    fs.invalidate_cache(shared)  # (the workers put them: not in this process's listings)
+    try:
+        found = fs.ls(shared, detail=True)
+    except FileNotFoundError:
+        return {}
+    return {PurePosixPath(f["name"]).name: f["name"] for f in found if f["type"] == "file"}
+
+
+def _publish(fs, staging, shared, root, replaces):
+    """Copy the files of ``staging`` and move those of ``shared`` into
+    ``root`` of filesystem ``fs`` (:func:`_published`)."""
+    remote = shared_names(fs, shared)
+    written = sorted({*(p.name for p in staging.iterdir()), *remote})
+    manifest = f"{root}/{MANIFESTS[replaces]}"
+    try:
+        earlier = fs.cat_file(manifest).decode().splitlines()
+    except (FileNotFoundError, UnicodeDecodeError):
+        earlier = []
+    for name, path in remote.items():
+        fs.mv(path, f"{root}/{name}")
+    for path in staging.iterdir():
+        fs.put_file(str(path), f"{root}/{path.name}")
+    fs.pipe_file(manifest, "".join(f"{name}\n" for name in written).encode())
+    for name in set(earlier) - set(written):
+        if replaces.fullmatch(name):
+            with contextlib.suppress(FileNotFoundError):
+                fs.rm_file(f"{root}/{name}")
+
+
 def _staging_folder(out):
     """Make ``out`` (and its parents) and a new staging folder in it, named
     after this process (:func:`_owner`); a UsageError naming ``out`` if it

@@ -30,7 +30,7 @@ from jaxadapt.cli._render_options import (
     _operator_options,
 )
 from jaxadapt.cli._shards import Work, in_shards, joined_parts, tidied
-from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged
+from jaxadapt.cli._staging import RENDER_OUTPUTS, _staged_shared, shared_names
 
 __all__ = [
     "add_parser",
@@ -297,10 +297,12 @@ def render(args, console):
     source, formats, fps = plan.source, plan.formats, plan.fps
     out, T, tables = args.out, len(source.times), []
     inputs = [*args.files, *([args.gaze] if args.gaze else [])]
-    with _staged(out, console, RENDER_OUTPUTS, keep=inputs) as staging:
+    with _staged_shared(out, console, RENDER_OUTPUTS, keep=inputs) as (staging, shared):
         if not args.allow_large:  # once --out is known to be writable
             frames_from = "FILE" if args.files else "--fps, --duration"
-            _check_work(T, source.shape, formats, out, frames_from)
+            # (an --out URL's files are written here first, then put there)
+            space = staging if io.is_url(out) else out
+            _check_work(T, source.shape, formats, space, frames_from)
         video = (source.times, args.files[0]) if _is_video(args.files) else None
         codec = args.video_codec or "h264"
         with (
@@ -339,7 +341,7 @@ def render(args, console):
                         tables.append(table)
             else:
                 times = video[0] if video else None
-                work = Work(plan, staging, key, args.chunk, budget, times, codec)
+                work = Work(plan, shared, key, args.chunk, budget, times, codec)
                 option = "--scheduler" if args.scheduler is not None else "--workers"
                 bounds = cluster.shard_bounds(T, cluster.workers_of(client))
                 for shard in in_shards(client, work, bounds, args.operator, option):
@@ -347,9 +349,10 @@ def render(args, console):
                     write.kept.update(shard.kept)
                     advance(len(shard.table["t"]))
         if client is not None:
-            tidied(staging)
+            if not io.is_url(shared):
+                tidied(shared)
             if "mp4" in formats:
-                joined_parts(staging, [start for start, _ in bounds], fps, video)
+                joined_parts(staging, shared, [start for start, _ in bounds], fps, video)
         table = pipeline.concatenate(tables)
         _warn_bleached(table, console)
         io.write_columns(staging / "diagnostics.csv", table)
@@ -358,6 +361,8 @@ def render(args, console):
         write.contact_sheet(plan.op.log_adaptation(table))
         plan.op.plot_diagnostics(staging / "adaptation.png", table, plan.params, plan.title)
         names = sorted(path.name for path in staging.iterdir())
+        if shared is not staging:  # (the files the workers put at an --out URL)
+            names = sorted({*names, *shared_names(*io.filesystem(shared))})
     frame_files = [name for name in names if name.startswith("frame_")]
     others = [name for name in names if not name.startswith("frame_")]
     if frame_files:

@@ -17,7 +17,7 @@ from jaxadapt.io._headers import (
     rgb_channels,
 )
 from jaxadapt.io._read import frame_rate, hdr_size, read_hdr, to_bt709_gamut
-from jaxadapt.io._remote import expanded, is_url, url_name
+from jaxadapt.io._remote import expanded, filesystem, is_url, url_errors, url_name
 from jaxadapt.io._video import VIDEO_TRANSFERS, joined_video, video_writer
 from jaxadapt.io._video_read import (
     HLG_PEAK,
@@ -58,6 +58,7 @@ __all__ = [
     "csv_writer",
     "display_window",
     "expanded",
+    "filesystem",
     "frame_rate",
     "hdr_size",
     "is_url",
@@ -70,6 +71,7 @@ __all__ = [
     "reorient",
     "rgb_channels",
     "to_bt709_gamut",
+    "url_errors",
     "url_name",
     "video_times",
     "video_writer",

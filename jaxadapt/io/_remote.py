@@ -24,7 +24,7 @@ def url_name(name):
     return PurePosixPath(name.split("://", 1)[1]).name if is_url(name) else Path(name).name
 
 
-def _filesystem(url):
+def filesystem(url):
     """``(filesystem, path)`` of ``url``; a ValueError naming it where the
     filesystem package of its protocol is not installed."""
     try:
@@ -50,13 +50,13 @@ def expanded(names):
     FileNotFoundError
         A glob matches no file.
     ValueError
-        The filesystem cannot list them (:func:`_said`).
+        The filesystem cannot list them (:func:`url_errors`).
     """
     files = []
     for name in names:
         if is_url(name) and re.search(r"[*?\[]", name):
-            fs, pattern = _filesystem(name)
-            with _said(name):
+            fs, pattern = filesystem(name)
+            with url_errors(name):
                 matches = sorted(fs.glob(pattern))
             if not matches:
                 raise FileNotFoundError(f"{name}: no file matches")
@@ -77,15 +77,15 @@ def local_copy(name):
     FileNotFoundError
         No file has that URL.
     ValueError
-        The filesystem cannot read it (:func:`_said`).
+        The filesystem cannot read it (:func:`url_errors`).
     """
     if not is_url(name):
         yield Path(name)
         return
-    fs, path = _filesystem(name)
+    fs, path = filesystem(name)
     with tempfile.TemporaryDirectory(prefix="jaxadapt-") as folder:
         copy = Path(folder) / url_name(name)
-        with _said(name):
+        with url_errors(name):
             fs.get_file(path, str(copy))
         try:
             yield copy
@@ -105,17 +105,17 @@ def opened(name):
     FileNotFoundError
         No file has that URL.
     ValueError
-        The filesystem cannot open it (:func:`_said`).
+        The filesystem cannot open it (:func:`url_errors`).
     """
     if not is_url(name):
         return str(name)
-    fs, path = _filesystem(name)
-    with _said(name):
+    fs, path = filesystem(name)
+    with url_errors(name):
         return fs.open(path, "rb")
 
 
 @contextlib.contextmanager
-def _said(name):
+def url_errors(name):
     """The errors of the block, a filesystem's reading of URL ``name``, as
     one line that names it: no such file, or any other (no credentials,
     access denied, a network error) as a ValueError with the package's

@@ -204,7 +204,7 @@ def joined_video(path, parts, fps, times=None, copy_from=None):
     path : str or Path
         The video, which appears only when it is complete.
     parts : sequence of (int, path)
-        Each part's first frame's number and its MP4, of one codec and
+        Each part's first frame's number and its MP4 (a path or a URL), of one codec and
         frame size, written by :func:`video_writer` with that ``first`` and
         this ``fps`` and ``times``; in order.
     fps, times, copy_from
@@ -223,7 +223,7 @@ def joined_video(path, parts, fps, times=None, copy_from=None):
         stream, copies, last = None, None, -(2**62)
         try:
             for first, part in parts:
-                with av.open(str(part)) as container:
+                with av.open(opened(part)) as container:
                     source = container.streams.video[0]
                     if stream is None:
                         stream = out.add_stream_from_template(source)
