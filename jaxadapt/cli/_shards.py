@@ -166,10 +166,7 @@ def joined_parts(staging, shared, starts, fps, video):
 
     from jaxadapt import io
 
-    if io.is_url(shared):
-        parts = [(start, f"{shared}/{VIDEO_PARTS}/{_part_name(start)}") for start in starts]
-    else:
-        parts = [(start, shared / VIDEO_PARTS / _part_name(start)) for start in starts]
+    parts = [(start, f"{shared}/{VIDEO_PARTS}/{_part_name(start)}") for start in starts]
     times, copy_from = video or (None, None)
     io.joined_video(staging / "video.mp4", parts, fps, times, copy_from)
     if not io.is_url(shared):

@@ -78,14 +78,8 @@ def _staged(out, console, replaces=None, keep=()):
         with _signals.signals_deferred():  # a signal as it is made is raised where it is removed
             staging = _staging_folder(out)
             _remove_dead_staging(out)
-        left = sorted(p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging)
-        if left:
-            console.print(
-                f"warning: {out} holds {', '.join(left)}: the staging folders of runs that were "
-                "killed (remove them) or are still running",
-                markup=False,
-                soft_wrap=True,
-            )
+        left = [p.name for p in out.glob(f"{STAGING_PREFIX}*") if p.is_dir() and p != staging]
+        _warn_left(console, out, left, "were killed")
         yield staging
         with _signals.signals_deferred():
             _signals.raise_swallowed()  # an interrupt that Python dropped
@@ -143,19 +137,10 @@ def _published(url, console, replaces):
     shared = f"{root}/{STAGING_PREFIX}{uuid.uuid4().hex}"
     with io.url_errors(url), contextlib.suppress(FileNotFoundError):
         fs.invalidate_cache(root)  # (what other processes wrote since this one last looked)
-        found = fs.ls(root, detail=True)
-        left = sorted(
-            f["name"].rsplit("/", 1)[-1]
-            for f in found
-            if f["type"] == "directory" and f["name"].rsplit("/", 1)[-1].startswith(STAGING_PREFIX)
-        )
-        if left:
-            console.print(
-                f"warning: {url} holds {', '.join(left)}: the staging folders of runs that "
-                "failed while a worker still wrote (remove them) or are still running",
-                markup=False,
-                soft_wrap=True,
-            )
+        folders = [f["name"] for f in fs.ls(root, detail=True) if f["type"] == "directory"]
+        names = [folder.rsplit("/", 1)[-1] for folder in folders]
+        left = [name for name in names if name.startswith(STAGING_PREFIX)]
+        _warn_left(console, url, left, "failed while a worker still wrote")
     with tempfile.TemporaryDirectory(prefix="jaxadapt-out-") as staging:
         try:
             yield Path(staging), fs.unstrip_protocol(shared)
@@ -166,6 +151,18 @@ def _published(url, console, replaces):
         finally:
             with _signals.signals_deferred(), contextlib.suppress(Exception):
                 fs.rm(shared, recursive=True)
+
+
+def _warn_left(console, out, left, how):
+    """Name on ``console`` the staging folders ``left`` in ``out`` of other
+    runs, which ``how`` (were killed ...) or are still running."""
+    if left:
+        console.print(
+            f"warning: {out} holds {', '.join(sorted(left))}: the staging folders of runs that "
+            f"{how} (remove them) or are still running",
+            markup=False,
+            soft_wrap=True,
+        )
 
 
 def shared_names(fs, shared):
