@@ -189,7 +189,8 @@ def _hdr_metadata(side_data):
     from av.sidedata.sidedata import Type
 
     out = {}
-    for item in side_data:
+    # (PyAV 18.1.1 iterates the container's keys, as a Mapping does; 18.1.0 its items)
+    for item in (side_data[k] if isinstance(k, Type) else k for k in side_data):
         data = bytes(item)
         if item.type == Type.MASTERING_DISPLAY_METADATA and len(data) >= 88:
             n = np.frombuffer(data[:80], np.int32).reshape(10, 2)
