@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt.fused import stored
 from jaxadapt.io._remote import is_url, opened
 from jaxadapt.physiology.response import power
 
@@ -394,7 +395,9 @@ def _hlg_planes(E, peak):
     a, b = 0.17883277, 1 - 4 * 0.17883277
     c = 0.5 - a * math.log(4 * a)
     E = [jnp.clip(e, 0.0, 1.0) for e in E]
-    scene = [jnp.where(e <= 0.5, e**2 / 3, (jnp.exp((e - c) / a) + b) / 12) for e in E]
+    scene = stored(
+        lambda: [jnp.where(e <= 0.5, e**2 / 3, (jnp.exp((e - c) / a) + b) / 12) for e in E]
+    )
     gamma = 1.2 + 0.42 * jnp.log10(peak / 1000.0)
     Y = 0.2627 * scene[0] + 0.6780 * scene[1] + 0.0593 * scene[2]
     gain = peak * power(jnp.maximum(Y, 1e-12), gamma - 1)
@@ -457,15 +460,18 @@ def _decoded(y, cb, cr, to_rgb, offset, gamut, hlg_peak, white, transfer):
     """Y'CbCr code planes (``(K, H, W)``, chroma at its own size) to linear
     BT.709 light in cd/m2 (``(K, H, W, 3)``), in one pass: the matrix to
     R'G'B' in [0, 1], the transfer's EOTF, the primaries."""
-    ycc = [y.astype(jnp.float32), _upsampled(cb, y.shape), _upsampled(cr, y.shape)]
-    centred = [ycc[i] - offset[i] for i in range(3)]
+    # Each of a matrix's three outputs reads all three inputs: the chroma
+    # and the light are stored once (jaxadapt.fused.stored), not evaluated
+    # again in every loop that reads them.
+    chroma = stored(lambda: [_upsampled(cb, y.shape), _upsampled(cr, y.shape)])
+    centred = [c - offset[i] for i, c in enumerate([y.astype(jnp.float32), *chroma])]
     rgb = [jnp.clip(c, 0.0, 1.0) for c in _mixed(to_rgb, centred)]
     if transfer == "pq":
-        light = [eotf_pq(c) for c in rgb]
+        light = stored(lambda: [eotf_pq(c) for c in rgb])
     elif transfer == "hlg":
-        light = _hlg_planes(rgb, hlg_peak)
+        light = stored(lambda: _hlg_planes(rgb, hlg_peak))
     else:  # BT.1886 with a black of 0: L = white V^2.4
-        light = [white * power(c, 2.4) for c in rgb]
+        light = stored(lambda: [white * power(c, 2.4) for c in rgb])
     return jnp.stack([jnp.maximum(c, 0.0) for c in _mixed(gamut, light)], axis=-1)
 
 
