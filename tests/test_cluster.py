@@ -25,7 +25,12 @@ SIMULATE = ["psychometric", "simulate", "--protocol", "afterimage", "--observers
 #: when it started): an in-process run's runtime.use_wide_vectors() changes
 #: XLA_FLAGS for the processes it starts, not for this one, and results in
 #: 256- and 512-bit vectors differ in the last bit.
-THIS_PROCESS_XLA_FLAGS = os.environ.get("XLA_FLAGS") or "--xla_cpu_prefer_vector_width=256"
+_FLAGS = os.environ.get("XLA_FLAGS", "")
+THIS_PROCESS_XLA_FLAGS = (
+    _FLAGS
+    if "xla_cpu_prefer_vector_width" in _FLAGS
+    else f"{_FLAGS} --xla_cpu_prefer_vector_width=256".strip()
+)
 
 
 def _free_port():

@@ -174,7 +174,8 @@ def test_integrate_steps_to_the_knots_of_every_path():
         atol=1e-14,
     )
     exact = 0.5 * 3.0 * 1.0 + (0.5 * (1.0 - 2.0) * 0.71 + 0.5 * (-2.0 + 5.0) * 0.29)
-    assert abs(float(solved[-1]) - exact) < 1e-12
+    # (to the tolerances asked of the solver: only rounding is left)
+    np.testing.assert_allclose(float(solved[-1]), exact, rtol=1e-12, atol=1e-14)
 
 
 def test_both_forms_of_the_prefix_states_agree():

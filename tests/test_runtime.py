@@ -1,6 +1,7 @@
 """Process settings: freed memory kept for reuse, compiled programs kept on
 disk (jaxadapt.runtime)."""
 
+import os
 import platform
 import subprocess
 import sys
@@ -33,12 +34,17 @@ for call in range(int(sys.argv[2]) + 1):
 
 
 def _faults(mode, calls):
-    """Page faults of each of ``calls`` repeated calls, in a fresh process."""
+    """Page faults of each of ``calls`` repeated calls, in a fresh process
+    compiled as the command line compiles (not at the test run's
+    optimisation level, tests/conftest.py: the buffers of the programs a
+    user runs)."""
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "optimization_level" not in f]
     done = subprocess.run(
         [sys.executable, "-c", PROGRAM, mode, str(calls)],
         capture_output=True,
         text=True,
         check=True,
+        env=dict(os.environ, XLA_FLAGS=" ".join(flags)),
     )
     return [int(line) for line in done.stdout.split()]
 
