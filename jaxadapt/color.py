@@ -22,6 +22,9 @@ __all__ = [
     "XYZ_TO_HPE",
     "RGB_TO_LMS",
     "LMS_TO_RGB",
+    "BT2020_TO_BT709",
+    "YCBCR_WEIGHTS",
+    "ycbcr_to_rgb",
     "transform",
     "combine",
     "photopic_luminance",
@@ -85,6 +88,60 @@ def _lms_matrix():
 RGB_TO_LMS = _lms_matrix()
 #: Its inverse.
 LMS_TO_RGB = np.linalg.inv(RGB_TO_LMS)
+
+
+#: Linear BT.2020 RGB to linear BT.709 RGB (both D65): colour-science's
+#: ``matrix_RGB_to_RGB`` of its ``"ITU-R BT.2020"`` and ``"ITU-R BT.709"``.
+BT2020_TO_BT709 = np.array(
+    [
+        [1.6604910021084347, -0.5876411387885498, -0.07284986331988497],
+        [-0.12455047452159082, 1.1328998971259605, -0.00834942260436943],
+        [-0.01815076335490522, -0.10057889800800744, 1.1187296613629127],
+    ]
+)
+
+#: Luma weights ``(Kr, Kb)`` of the Y'CbCr matrices, by colour-science's
+#: names (its ``WEIGHTS_YCBCR``).
+YCBCR_WEIGHTS = {
+    "ITU-R BT.601": (0.299, 0.114),
+    "ITU-R BT.709": (0.2126, 0.0722),
+    "ITU-R BT.2020": (0.2627, 0.0593),
+}
+
+
+def ycbcr_to_rgb(weights, bits, legal):
+    """The matrix and offsets that turn integer Y'CbCr codes into R'G'B'
+    in [0, 1]: ``R'G'B' = matrix @ (codes - offsets)``.
+
+    ITU-R BT.601, BT.709 and BT.2020's Y'CbCr for luma weights ``(Kr,
+    Kb)`` (:data:`YCBCR_WEIGHTS`), as colour-science's ``matrix_YCbCr``
+    and ``offset_YCbCr`` (integer codes) give them: legal ("video") range
+    Y' 16 to 235 and Cb, Cr 16 to 240, times ``2^(bits - 8)``; full range
+    0 to ``2^bits - 1``, chroma centred on ``2^(bits - 1)``.
+
+    Parameters
+    ----------
+    weights : (float, float)
+    bits : int
+        Bits a code.
+    legal : bool
+        Legal (limited) range, or full range.
+
+    Returns
+    -------
+    (numpy array (3, 3), numpy array (3,))
+    """
+    Kr, Kb = weights
+    if legal:
+        Y_min, Y_max, C_min, C_max = np.array([16.0, 235.0, 16.0, 240.0]) * 2.0 ** (bits - 8)
+    else:
+        Y_min, Y_max, C_min, C_max = 0.0, 2.0**bits - 1, 0.5, 2.0**bits - 0.5
+    Y = np.array([Kr, 1.0 - Kr - Kb, Kb])
+    Cb = 0.5 * (np.array([0.0, 0.0, 1.0]) - Y) / (1.0 - Kb) * (C_max - C_min)
+    Cr = 0.5 * (np.array([1.0, 0.0, 0.0]) - Y) / (1.0 - Kr) * (C_max - C_min)
+    matrix = np.linalg.inv(np.vstack([Y * (Y_max - Y_min), Cb, Cr]))
+    centre = (C_min + C_max) / 2
+    return matrix, np.array([Y_min, centre, centre])
 
 
 def transform(x, M):

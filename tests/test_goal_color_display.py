@@ -85,6 +85,18 @@ def test_frozen_constants_equal_colour_science():
     )
     assert color.SP_RATIO_D65 == pytest.approx(ratio, rel=1e-15)
     np.testing.assert_array_equal(color.XYZ_TO_HPE, colour.appearance.hunt.MATRIX_XYZ_TO_HPE)
+    bt2020, bt709 = (colour.RGB_COLOURSPACES[f"ITU-R BT.{n}"] for n in (2020, 709))
+    np.testing.assert_array_equal(color.BT2020_TO_BT709, colour.matrix_RGB_to_RGB(bt2020, bt709))
+    assert set(color.YCBCR_WEIGHTS) <= set(colour.WEIGHTS_YCBCR)
+    for name, weights in color.YCBCR_WEIGHTS.items():
+        np.testing.assert_array_equal(weights, colour.WEIGHTS_YCBCR[name])
+        for bits in (8, 10, 12, 16):
+            for legal in (True, False):
+                matrix, offsets = color.ycbcr_to_rgb(weights, bits, legal)
+                np.testing.assert_allclose(
+                    matrix, colour.matrix_YCbCr(weights, bits, legal, True), rtol=1e-15, atol=1e-18
+                )
+                np.testing.assert_array_equal(offsets, colour.offset_YCbCr(bits, legal, True))
 
 
 def test_importing_the_library_does_not_import_colour_science():

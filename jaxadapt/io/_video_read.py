@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxadapt import color
 from jaxadapt.fused import stored
 from jaxadapt.io._remote import is_url, opened
 from jaxadapt.physiology.response import power
@@ -353,19 +354,13 @@ def _planes(frame, bits):
 
 
 def _conversion(info, hlg_peak, white):
-    """The constants of one frame's conversion: the Y'CbCr matrix and offsets
-    (colour-science's), the gamut matrix to BT.709."""
-    import colour
-    from colour.models.rgb.ycbcr import matrix_YCbCr, offset_YCbCr
-
-    K = colour.WEIGHTS_YCBCR[info.matrix]
-    to_rgb = matrix_YCbCr(K, info.bits, not info.full_range, True)
-    offset = offset_YCbCr(info.bits, not info.full_range, True)
-    gamut = np.eye(3)
-    if info.primaries == "bt2020":
-        gamut = colour.matrix_RGB_to_RGB(
-            colour.RGB_COLOURSPACES["ITU-R BT.2020"], colour.RGB_COLOURSPACES["ITU-R BT.709"]
-        )
+    """The constants of one frame's conversion: the Y'CbCr matrix and offsets,
+    the gamut matrix to BT.709 (colour-science's, written out in
+    :mod:`jaxadapt.color`: importing it took a second of a render)."""
+    to_rgb, offset = color.ycbcr_to_rgb(
+        color.YCBCR_WEIGHTS[info.matrix], info.bits, legal=not info.full_range
+    )
+    gamut = color.BT2020_TO_BT709 if info.primaries == "bt2020" else np.eye(3)
     return (
         jnp.asarray(to_rgb, jnp.float32),
         jnp.asarray(offset, jnp.float32),
