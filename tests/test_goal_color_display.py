@@ -99,15 +99,17 @@ def test_frozen_constants_equal_colour_science():
                 np.testing.assert_array_equal(offsets, colour.offset_YCbCr(bits, legal, True))
 
 
-def test_importing_the_library_does_not_import_colour_science():
+def test_importing_the_library_imports_neither_colour_science_nor_diffrax():
+    # (each takes a large part of a second: only the code that needs one imports it)
     code = (
         "import sys, jaxadapt, jaxadapt.cli, jaxadapt.pipeline, jaxadapt.figures; "
-        "from jaxadapt.operators import jacobs2015, classic; "
+        "from jaxadapt.operators import jacobs2015, classic, pattanaik2000; "
+        "from jaxadapt import fitting, psychophysics, viewer; "
         "[jaxadapt.cli._main.build_parser(c) for c in jaxadapt.cli._options.COMMANDS]; "
-        "print('colour' in sys.modules)"
+        "print('colour' in sys.modules, 'diffrax' in sys.modules)"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert result.stdout.strip() == "False", result.stderr
+    assert result.stdout.strip() == "False False", result.stderr
 
 
 def test_scotopic_weights_follow_the_scotopic_curve():

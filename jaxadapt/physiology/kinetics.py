@@ -32,7 +32,6 @@ vary continuously. Times in seconds, luminance in cd/m2.
 import math
 from typing import NamedTuple
 
-import diffrax
 import jax
 import jax.numpy as jnp
 
@@ -282,6 +281,8 @@ def _affine_sequence_jvp(primals, tangents):
 
 def _at(G, t):
     """The input at time ``t``: ``G`` itself, or ``G.evaluate(t)`` for a diffrax path."""
+    import diffrax  # (here and below, not at import: it takes a quarter of a second)
+
     return G.evaluate(t) if isinstance(G, diffrax.AbstractPath) else G
 
 
@@ -365,6 +366,8 @@ def goal_path(ts, values):
 
     A :class:`diffrax.LinearInterpolation`, to pass as ``G`` in ``args``.
     """
+    import diffrax
+
     return diffrax.LinearInterpolation(ts=jnp.asarray(ts), ys=jnp.asarray(values))
 
 
@@ -399,6 +402,8 @@ def integrate(rhs, y0, ts, args, *, rtol=None, atol=None, max_steps=65536):
     array, shape (K, *y0.shape)
         The state at each of ``ts``.
     """
+    import diffrax
+
     ts = jnp.asarray(ts)
     default = max(1e-8, 1e4 * float(jnp.finfo(ts.dtype).eps))
     rtol = default if rtol is None else rtol
