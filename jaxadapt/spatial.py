@@ -19,6 +19,10 @@ __all__ = [
     "channels_last_filter",
     "LONG_KERNEL",
     "gaussian_blur",
+    "DECIMATE_AT",
+    "EXPAND_SIGMA",
+    "ladder_levels",
+    "gaussian_ladder",
     "as_image",
     "sum_headroom",
     "box_filter",
@@ -695,3 +699,173 @@ def bilateral_filter(
     zeros = jnp.zeros_like(values)
     (num, den), _ = jax.lax.scan(accumulate, (zeros, zeros), taps)
     return (num / den * up).reshape(shape)
+
+
+# -- Gaussian ladder: blurs at rising widths, each at a cost bounded whatever its width --
+
+#: Width at which a level of :func:`gaussian_ladder` is decimated, pixels of
+#: that level: a Gaussian of 2 pixels passes 0.7 % of a sinusoid at the
+#: decimated level's Nyquist frequency, the most that can alias.
+DECIMATE_AT = 2.0
+
+#: Width of the Gaussian that interpolates a level onto the next finer one,
+#: pixels of the finer level: its images of the coarse level's spectrum, at
+#: half the finer level's sampling rate and above, pass at most 0.08 %.
+EXPAND_SIGMA = 1.2
+
+
+def ladder_levels(sigmas):
+    """The pyramid level (0 = full resolution) at which :func:`gaussian_ladder`
+    blurs each of ``sigmas`` (pixels): the coarsest whose decimation width
+    (:data:`DECIMATE_AT`) and interpolations back up (:data:`EXPAND_SIGMA`)
+    still fit in the blur's variance."""
+    added = EXPAND_SIGMA**2 / 3  # expanding from level l adds added (4^l - 1) pixels^2
+    levels = []
+    for s in sigmas:
+        _check_sigma(s)
+        level = 0
+        while s**2 >= 4 ** (level + 1) * (added + DECIMATE_AT**2 / 4) - added:
+            level += 1
+        levels.append(level)
+    return levels
+
+
+def gaussian_ladder(image, sigmas, needed=None):
+    """Gaussian blurs of the first two axes of ``image (H, W, ...)`` at each
+    of the rising ``sigmas``, each at a cost per pixel bounded whatever its
+    width.
+
+    A pyramid: level 0 is the image; once a level holds a blur of at least
+    :data:`DECIMATE_AT` of its pixels, every other sample of that blur
+    starts the next level, a quarter the size. Each requested blur is made
+    on the coarsest level it fits (:func:`ladder_levels`), from that level's
+    start by the sampled Gaussian (:func:`gaussian_kernel`) that makes up
+    its variance (Gaussians compose: a blur of ``s`` blurred by ``sqrt(t^2
+    - s^2)`` is one of ``t``), then interpolated back up to full size by
+    Gaussians of :data:`EXPAND_SIGMA` (:func:`_expand`), whose variance is
+    counted in it. A blur on level 0 is exactly :func:`channels_last_filter`
+    with :func:`gaussian_kernel`; its kernel stays under 2.4 pixels of its
+    level, so a blur costs at most 21 taps a pass on level 0, or a quarter
+    of that and an interpolation on a coarser level, where a direct blur
+    takes ``8 sigma + 1`` taps a pass. Every weight is positive, so a
+    non-negative image gives non-negative blurs. Edges are mirror-extended
+    on every level, as :func:`channels_last_filter` does.
+
+    Parameters
+    ----------
+    image : array, shape (H, W, ...)
+    sigmas : sequence of float
+        Standard deviations, pixels, rising (static).
+    needed : sequence of traced bool, optional
+        Whether each blur is used; one not needed, and a level only it
+        needs, is skipped on the CPU (zeros instead), as in
+        :func:`jaxadapt.fused.stored`. By default all are computed.
+
+    Returns
+    -------
+    list of functions
+        Each gives its blur ``(H, W, ...)`` when called: called where the
+        blur is used (under the caller's conditional, say), its last pass
+        fuses with that use, as :func:`channels_last_filter`'s does.
+    """
+    sigmas = [float(s) for s in sigmas]
+    if np.any(np.diff(sigmas) <= 0):
+        raise ValueError(f"sigmas: expected rising widths in pixels, got {sigmas!r}")
+    levels = ladder_levels(sigmas)
+    needed = [None] * len(sigmas) if needed is None else list(needed)
+
+    def any_of(flags):
+        flags = list(flags)
+        if any(f is None for f in flags):
+            return None
+        return functools.reduce(jnp.logical_or, flags, jnp.bool_(False))
+
+    depth = max(levels)
+    shapes = [image.shape[:2]]
+    for _ in range(depth):
+        shapes.append(tuple(-(-n // 2) for n in shapes[-1]))
+    # Each blur's variance on its level before the interpolations, full pixels^2.
+    held = [s**2 - EXPAND_SIGMA**2 * (4**l - 1) / 3 for s, l in zip(sigmas, levels, strict=True)]
+
+    out = [None] * len(sigmas)
+    start, start_variance = image, 0.0
+    for level in range(depth + 1):
+
+        def blur(variance, when, start=start, start_variance=start_variance, level=level):
+            if variance <= start_variance:
+                return start
+            width = np.sqrt(variance - start_variance) / 2**level  # pixels of the level
+            taps = gaussian_kernel(width) if level == 0 else _kernel_of_variance(width**2)
+            return channels_last_filter(start, taps, when)
+
+        mine = [i for i, l in enumerate(levels) if l == level]
+        source = None
+        if level < depth:
+            # The next level starts from a blur of this one of at least
+            # DECIMATE_AT of its pixels and at most what the next level's
+            # blurs hold: the widest such blur made here, else one made for it.
+            least = (DECIMATE_AT * 2**level) ** 2
+            most = min(held[i] for i, l in enumerate(levels) if l > level)
+            source = max((held[i] for i in mine if least <= held[i] <= most), default=least)
+            when = any_of(needed[i] for i, l in enumerate(levels) if l > level or held[i] == source)
+            made = stored(lambda source=source, when=when: blur(source, when), when)
+        for i in mine:
+            if held[i] == source:
+                coarse = made
+            elif level == 0:
+                out[i] = functools.partial(blur, held[i], needed[i])
+                continue
+            else:
+                coarse = stored(functools.partial(blur, held[i], needed[i]), needed[i])
+            out[i] = functools.partial(_expanded, coarse, shapes[:level], needed[i])
+        if source is not None:
+            start, start_variance = made[::2, ::2], source
+    return out
+
+
+def _expanded(x, shapes, when):
+    """``x`` interpolated (:func:`_expand`) level by level onto ``shapes[0]``
+    from the level of ``shapes[-1]``, each level stored but the last, so
+    that the last fuses with what the caller does with it (none: ``x``)."""
+    for k, shape in enumerate(reversed(shapes)):
+        x = _expand(x, shape, when)
+        if k < len(shapes) - 1:
+            x = stored(lambda x=x: x, when)
+    return x
+
+
+def _kernel_of_variance(variance):
+    """The sampled Gaussian (:func:`gaussian_kernel`) whose taps' variance is
+    ``variance`` (pixels^2): below about one pixel a sampled Gaussian's
+    taps hold less variance than its width's square."""
+    from scipy.optimize import brentq
+
+    def held(sigma):
+        taps = gaussian_kernel(sigma)
+        x = np.arange(taps.size) - taps.size // 2
+        return np.sum(taps * x**2) - variance
+
+    return gaussian_kernel(brentq(held, np.sqrt(variance), np.sqrt(variance) + 1.0, xtol=1e-12))
+
+
+def _expand(x, shape, when):
+    """``x (h, w, ...)`` interpolated onto the level twice as fine, cut to
+    ``shape (H, W)``: each finer sample a Gaussian (:data:`EXPAND_SIGMA`)
+    weighting of the coarse samples, normalised per phase. The first pass
+    is stored (:func:`jaxadapt.fused.stored`, skipped unless ``when``), the
+    second fuses with its use."""
+    r = int(np.ceil(4 * EXPAND_SIGMA / 2)) + 1
+    j = np.arange(-r, r + 1)
+    phases = []
+    for offset in (0, 1):  # finer samples on a coarse one, between two
+        taps = np.exp(-0.5 * ((2 * j - offset) / EXPAND_SIGMA) ** 2)
+        phases.append(taps / taps.sum())
+
+    def interpolated(x, axis, n):
+        even, odd = (_mirrored_pass(x, taps, axis) for taps in phases)
+        both = jnp.stack([even, odd], axis=axis + 1)
+        x = both.reshape(x.shape[:axis] + (2 * x.shape[axis],) + x.shape[axis + 1 :])
+        return jax.lax.slice_in_dim(x, 0, n, axis=axis)
+
+    rows = stored(lambda: interpolated(x, 0, shape[0]), when)
+    return interpolated(rows, 1, shape[1])

@@ -248,6 +248,88 @@ def test_long_kernels_keep_the_dark_side_of_an_hdr_edge_in_float32():
     np.testing.assert_allclose(blurred, expected, rtol=1e-4)
 
 
+#: Largest difference allowed between a blur of spatial.gaussian_ladder made
+#: on a coarser level and SciPy's sampled Gaussian, as a fraction of the
+#: image's range (docs/choices.md, "The acuity loss's blurs"): measured up
+#: to 0.30 %, for the blurs just past a decimation.
+LADDER_TOLERANCE = 4e-3
+
+
+def hdr_test_image(shape):
+    """Noise on 0-1 cd/m2 with a 1e4 block and a bright pixel: HDR edges
+    in both directions and near two image edges."""
+    x = np.random.default_rng(9).uniform(0.0, 1.0, shape)
+    x[5:40, 3:50] = 1e4
+    x[shape[0] // 2, shape[1] // 2] = 1e4
+    return x
+
+
+@pytest.mark.parametrize("scale", [1, 4, 16])
+def test_the_gaussian_ladder_is_scipys_gaussian_filter(scale):
+    # Eight quarter-octave widths from 0.75 pixels (the acuity bands at the
+    # paper's display) to 3.2, 12.7 and 50.8 times those, on a frame of
+    # odd sizes: all within LADDER_TOLERANCE of SciPy's sampled Gaussian
+    # (mode "mirror"; SciPy rounds the kernel's half-width where we take
+    # its ceiling) and non-negative, those on level 0 the direct blurs, and
+    # a constant stays constant.
+    from scipy.ndimage import gaussian_filter
+
+    sigmas = [scale * 0.75 * 2 ** (i / 4) for i in range(8)]
+    x = hdr_test_image((181, 243, 2))
+    levels = spatial.ladder_levels(sigmas)
+    assert (
+        levels
+        == {1: [0] * 7 + [1], 4: [1, 1, 1, 2, 2, 2, 2, 3], 16: [3] * 3 + [4] * 4 + [5]}[scale]
+    )
+    blurs = [b() for b in spatial.gaussian_ladder(jnp.asarray(x), sigmas)]
+    for s, level, blur in zip(sigmas, levels, blurs, strict=True):
+        expected = np.stack(
+            [gaussian_filter(x[..., c], s, mode="mirror", truncate=4.0) for c in range(2)], -1
+        )
+        error = np.abs(np.asarray(blur) - expected).max() / x.max()
+        assert error < LADDER_TOLERANCE, (s, error)
+        assert float(blur.min()) >= 0.0
+        if level == 0:
+            direct = spatial.channels_last_filter(jnp.asarray(x), spatial.gaussian_kernel(s))
+            np.testing.assert_allclose(blur, direct, rtol=1e-12)
+    constant = spatial.gaussian_ladder(jnp.full((37, 51), 3.0), sigmas)
+    for blur in constant:
+        np.testing.assert_allclose(blur(), 3.0, rtol=1e-12)
+
+
+def test_a_blur_of_the_ladder_costs_the_same_at_any_width():
+    # XLA's count of floating-point operations: a direct blur's grows with
+    # its width (8 sigma + 1 taps a pass), the ladder's stays bounded.
+    x = jnp.zeros((135, 240, 3), jnp.float32)
+
+    def flops(f):
+        analysis = jax.jit(f).lower(x).compile().cost_analysis()
+        return (analysis[0] if isinstance(analysis, list) else analysis)["flops"]
+
+    ladder, direct = [], []
+    for s in (2.5, 10.0, 40.0):
+        ladder.append(flops(lambda x, s=s: spatial.gaussian_ladder(x, [s])[0]()))
+        direct.append(
+            flops(lambda x, s=s: spatial.channels_last_filter(x, spatial.gaussian_kernel(s)))
+        )
+    assert direct[2] > 10 * direct[0]
+    assert ladder[2] < 1.5 * ladder[0], ladder
+
+
+def test_blurs_of_the_ladder_not_needed_are_skipped():
+    # On the CPU a blur not needed is zeros; a needed one past it is exact,
+    # though the level it starts from was made for it alone.
+    sigmas = [0.75, 1.5, 3.0, 6.0]
+    x = jnp.asarray(hdr_test_image((60, 70)))
+    full = [b() for b in spatial.gaussian_ladder(x, sigmas)]
+    needed = [jnp.bool_(False), jnp.bool_(True), jnp.bool_(False), jnp.bool_(True)]
+    some = [b() for b in spatial.gaussian_ladder(x, sigmas, needed)]
+    for blur, all_of, need in zip(some, full, needed, strict=True):
+        np.testing.assert_allclose(blur, all_of if need else 0.0, rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="sigmas: expected rising widths"):
+        spatial.gaussian_ladder(x, [2.0, 1.0])
+
+
 def test_both_forms_of_the_colour_transform_are_the_matrix_product():
     # The CPU computes the rows in turn, other platforms at once (transform's notes).
     x = np.random.default_rng(5).lognormal(size=(2, 5, 4, 3))
