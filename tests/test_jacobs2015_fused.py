@@ -3,7 +3,8 @@
 ``reference_frame`` below is the operator's frame as it was computed before
 the step was rendered in strips of channel planes (commit 223785f): every
 stage on whole ``(H, W, 3)`` frames, one after another, with the blurs of
-:func:`jaxadapt.spatial.gaussian_blur` and :func:`separable_filter` and
+:func:`jaxadapt.spatial.gaussian_ladder` (the acuity loss's, tested against
+SciPy's in test_goal_color_display.py) and :func:`separable_filter` and
 the dithering of :func:`jaxadapt.display.dither`. The operator must give
 its frames and states within :data:`TOLERANCE` (docs/choices.md, "The 2015
 renderer's fused step"), for every effect switched on alone and all
@@ -29,8 +30,8 @@ from jaxadapt.physiology.response import naka_rushton, power
 from jaxadapt.spatial import (
     channels_last_filter,
     discrete_gaussian_kernel,
-    gaussian_blur,
     gaussian_kernel,
+    gaussian_ladder,
     separable_filter,
 )
 
@@ -59,19 +60,16 @@ def reference_frame(params, state, frame, dt, sample):
     B = op.retinal_shift(jnp.moveaxis(state.B, 0, -1), shift, B_inf)  # maps kept as planes
     C = op.retinal_shift(jnp.moveaxis(state.C, 0, -1), shift, C_inf)
     sigmas = op.acuity_sigmas(params)
-    L_local = gaussian_blur(transform(frame, params.w_P), sigmas[-1])
-    rho = op.normalised_log_luminance(params, L_local)
+    (L_local,) = gaussian_ladder(transform(frame, params.w_P), sigmas[-1:])
+    rho = op.normalised_log_luminance(params, L_local())
     key_noise, key_dither = (jax.random.fold_in(state.key, i) for i in range(2))
     scene = frame
     if params.acuity:
         X = op.acuity_noise(params, key_noise, state.t, shape)
         thresholds = op.acuity_thresholds(params)[:, None, None]
         dropped = jnp.sum((rho + params.g * X)[None] <= thresholds, axis=0)
-        planes = jnp.moveaxis(frame, -1, 0)
-        seen = planes
-        for f, s in enumerate(sigmas):
-            seen = jnp.where(dropped > f, gaussian_blur(planes, s), seen)
-        scene = jnp.moveaxis(seen, 0, -1)
+        for f, blurred in enumerate(gaussian_ladder(frame, sigmas)):
+            scene = jnp.where((dropped > f)[..., None], blurred(), scene)
     r = jnp.clip(rho, 0.0, 1.0)
     L_P = transform(scene, params.w_P)
     L = r * L_P + (1.0 - r) * transform(scene, params.w_S) if params.purkinje else L_P

@@ -16,7 +16,7 @@ import numpy as np
 from jaxadapt.background import LUMINANCE_FLOOR
 from jaxadapt.color import combine
 from jaxadapt.operators.jacobs2015._planes import planes
-from jaxadapt.spatial import channels_last_filter, gaussian_kernel
+from jaxadapt.spatial import gaussian_ladder
 
 # -- mesopic vision (Eqs 13-15) -----------------------------------------------
 
@@ -33,10 +33,11 @@ def normalised_log_luminance(params, L):
 
 def local_rho(params, frame):
     """rho (Eq 13) of the local photopic luminance: the frame's luminance
-    blurred at the coarsest acuity scale. ``frame (H, W, 3)`` -> ``(H, W)``."""
+    blurred at the coarsest acuity scale (:func:`jaxadapt.spatial.gaussian_ladder`).
+    ``frame (H, W, 3)`` -> ``(H, W)``."""
     L = combine(params.w_P, planes(frame))
-    taps = gaussian_kernel(acuity_sigmas(params)[-1])
-    return normalised_log_luminance(params, channels_last_filter(L, taps))
+    (local,) = gaussian_ladder(L, acuity_sigmas(params)[-1:])
+    return normalised_log_luminance(params, local())
 
 
 def _interpolation_matrix(n, cell):
@@ -139,16 +140,17 @@ def dropped_bands(params, rho, X):
 
 def resolve(params, frame, dropped, present):
     """The frame blurred per pixel at the finest scale it resolves
-    (:func:`acuity_loss`), from :func:`dropped_bands`: each blur computed
-    only where some pixel keeps it."""
+    (:func:`acuity_loss`), from :func:`dropped_bands`: the blurs of
+    :func:`jaxadapt.spatial.gaussian_ladder`, each computed only where some
+    pixel keeps it."""
+    needed = [(present >> min(f + 1, 31)) & 1 == 1 for f in range(params.acuity_bands)]
+    blurs = gaussian_ladder(frame, acuity_sigmas(params), needed)
     seen = frame
-    for f, sigma in enumerate(acuity_sigmas(params)):
+    for f, blurred in enumerate(blurs):
         keeps = dropped == f + 1  # the pixels that resolve blur f and no finer
-        needed = (present >> min(f + 1, 31)) & 1 == 1 if f < 30 else jnp.bool_(True)
 
-        def select(seen, keeps=keeps, needed=needed, sigma=sigma):
-            blurred = channels_last_filter(frame, gaussian_kernel(sigma), needed)
-            return jnp.where(keeps[..., None], blurred, seen)
+        def select(seen, keeps=keeps, blurred=blurred):
+            return jnp.where(keeps[..., None], blurred(), seen)
 
-        seen = jax.lax.cond(needed, select, lambda seen: seen, seen)
+        seen = jax.lax.cond(needed[f], select, lambda seen: seen, seen)
     return seen
