@@ -157,6 +157,13 @@ class MemoryCeiling:
     sequence's length, at the price of a chunk's page faults at each
     release.
 
+    A call over the ceiling right after a release raises the ceiling to
+    the resident memory then plus ``margin``, and releases nothing: the
+    pages handed back were faulted in again within one chunk, so they are
+    the sequence's working set (a video's decoder and encoder fill theirs
+    after the first chunk), not holes, and releasing them at every chunk
+    would only fault them in again.
+
     Parameters
     ----------
     margin : int
@@ -164,17 +171,18 @@ class MemoryCeiling:
     """
 
     def __init__(self, margin):
-        self.margin, self.ceiling = margin, None
+        self.margin, self.ceiling, self.released = margin, None, False
 
     def __call__(self):
         """Release freed memory if the process is over the ceiling; whether it was."""
         resident = resident_bytes()
         if resident is None:
             return False
-        if self.ceiling is None:
-            self.ceiling = resident + self.margin
+        if self.ceiling is None or (resident > self.ceiling and self.released):
+            self.ceiling, self.released = resident + self.margin, False
             return False
-        return resident > self.ceiling and release_freed_memory()
+        self.released = resident > self.ceiling and release_freed_memory()
+        return self.released
 
 
 def _glibc():

@@ -291,3 +291,15 @@ def test_chunks_release_freed_memory_past_the_ceiling(monkeypatch):
     chunks = pipeline.chunks(pattanaik2000, pattanaik2000.Params(), source, size=4, budget=500)
     assert len(list(chunks)) == 4
     assert released == [1]  # at the third chunk only: 1000 > 100 + 500
+
+
+def test_a_ceiling_outgrown_again_at_once_is_raised_not_released_again(monkeypatch):
+    # pages handed back and faulted in again within one chunk are the
+    # working set (a video's decoder and encoder): the ceiling moves up
+    sizes = iter([100, 1000, 1000, 1200, 1600, 300])  # bytes resident at each call
+    released = []
+    monkeypatch.setattr(runtime, "resident_bytes", lambda: next(sizes))
+    monkeypatch.setattr(runtime, "release_freed_memory", lambda: released.append(1) or True)
+    ceiling = runtime.MemoryCeiling(500)
+    assert [ceiling() for _ in range(6)] == [False, True, False, False, True, False]
+    assert len(released) == 2 and ceiling.ceiling == 1500  # 1000 + 500, from the third call
